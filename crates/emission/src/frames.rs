@@ -1,0 +1,228 @@
+//! Contiguous, validated views of frames.
+//!
+//! A sequence of `T` frames of dimension `D` is stored row-major: frame `t`
+//! occupies `data[t*D .. (t+1)*D]`. The same memory is a column-major `D × T`
+//! matrix, which is how the linear algebra sees it, without a copy.
+
+use crate::error::{EmissionError, Result};
+
+/// A borrowed, validated block of `len()` frames of dimension `dim()`.
+///
+/// Validation happens once in [`Frames::new`]; every model then reads the data
+/// without further checks.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Frames<'a> {
+    data: &'a [f64],
+    dim: usize,
+}
+
+impl<'a> Frames<'a> {
+    /// Wraps `data` as frames of dimension `dim`; every value must be finite.
+    ///
+    /// Errors name the frame and column of the first bad value.
+    pub fn new(data: &'a [f64], dim: usize) -> Result<Self> {
+        if dim == 0 {
+            return Err(EmissionError::InvalidParameter {
+                name: "dim",
+                reason: "frames must have at least one dimension".into(),
+            });
+        }
+        if data.len() % dim != 0 {
+            return Err(EmissionError::DimensionMismatch {
+                context: "frames: data length is not a multiple of the dimension",
+                expected: dim * (data.len() / dim + 1),
+                found: data.len(),
+            });
+        }
+        if let Some(i) = data.iter().position(|v| !v.is_finite()) {
+            return Err(EmissionError::InvalidValue {
+                frame: i / dim,
+                column: i % dim,
+                value: data[i],
+                reason: "value is not finite",
+            });
+        }
+        Ok(Frames { data, dim })
+    }
+
+    /// Number of frames.
+    #[inline]
+    pub fn len(&self) -> usize {
+        self.data.len() / self.dim
+    }
+
+    /// True when there are no frames.
+    #[inline]
+    pub fn is_empty(&self) -> bool {
+        self.data.is_empty()
+    }
+
+    /// Dimension of each frame.
+    #[inline]
+    pub fn dim(&self) -> usize {
+        self.dim
+    }
+
+    /// Frame `t` as a slice of length `dim()`.
+    #[inline]
+    pub fn frame(&self, t: usize) -> &'a [f64] {
+        &self.data[t * self.dim..(t + 1) * self.dim]
+    }
+
+    /// The whole row-major block.
+    #[inline]
+    pub fn as_slice(&self) -> &'a [f64] {
+        self.data
+    }
+
+    /// Iterator over the frames.
+    pub fn iter(&self) -> std::slice::ChunksExact<'a, f64> {
+        self.data.chunks_exact(self.dim)
+    }
+
+    /// Frames `range.start .. range.end` (no re-validation needed).
+    pub fn slice(&self, range: std::ops::Range<usize>) -> Frames<'a> {
+        Frames {
+            data: &self.data[range.start * self.dim..range.end * self.dim],
+            dim: self.dim,
+        }
+    }
+}
+
+/// Many variable-length sequences of frames in one contiguous buffer.
+///
+/// Sequence `k` is frames `offsets[k] .. offsets[k+1]` of the buffer.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SequenceSet {
+    data: Vec<f64>,
+    dim: usize,
+    offsets: Vec<usize>,
+}
+
+impl SequenceSet {
+    /// Builds a set from row-major sequences, each `len_k × dim`.
+    ///
+    /// Errors say which sequence, frame and column is bad; empty sequences are refused.
+    pub fn new<S: AsRef<[f64]>>(sequences: &[S], dim: usize) -> Result<Self> {
+        let mut data = Vec::with_capacity(sequences.iter().map(|s| s.as_ref().len()).sum());
+        let mut offsets = vec![0];
+        for (k, s) in sequences.iter().enumerate() {
+            let s = s.as_ref();
+            let frames = Frames::new(s, dim).map_err(|e| match e {
+                EmissionError::InvalidValue {
+                    frame,
+                    column,
+                    value,
+                    reason,
+                } => EmissionError::InvalidParameter {
+                    name: "sequences",
+                    reason: format!(
+                        "sequence {k}, frame {frame}, column {column}: {reason} (value {value})"
+                    ),
+                },
+                EmissionError::DimensionMismatch { found, .. } => EmissionError::InvalidParameter {
+                    name: "sequences",
+                    reason: format!(
+                        "sequence {k} has {found} values, not a multiple of the dimension {dim}"
+                    ),
+                },
+                other => other,
+            })?;
+            if frames.is_empty() {
+                return Err(EmissionError::InvalidParameter {
+                    name: "sequences",
+                    reason: format!("sequence {k} is empty"),
+                });
+            }
+            data.extend_from_slice(s);
+            offsets.push(offsets.last().unwrap() + frames.len());
+        }
+        if dim == 0 {
+            return Err(EmissionError::InvalidParameter {
+                name: "dim",
+                reason: "frames must have at least one dimension".into(),
+            });
+        }
+        Ok(SequenceSet { data, dim, offsets })
+    }
+
+    /// One sequence stored as a single block.
+    pub fn single(data: &[f64], dim: usize) -> Result<Self> {
+        Self::new(&[data], dim)
+    }
+
+    /// Number of sequences.
+    pub fn len(&self) -> usize {
+        self.offsets.len() - 1
+    }
+
+    /// True when there is no sequence.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Dimension of every frame.
+    pub fn dim(&self) -> usize {
+        self.dim
+    }
+
+    /// Total number of frames over all sequences.
+    pub fn total_frames(&self) -> usize {
+        *self.offsets.last().unwrap()
+    }
+
+    /// Length of every sequence.
+    pub fn lengths(&self) -> impl Iterator<Item = usize> + '_ {
+        self.offsets.windows(2).map(|w| w[1] - w[0])
+    }
+
+    /// Sequence `k`.
+    pub fn get(&self, k: usize) -> Frames<'_> {
+        Frames {
+            data: &self.data[self.offsets[k] * self.dim..self.offsets[k + 1] * self.dim],
+            dim: self.dim,
+        }
+    }
+
+    /// Iterator over the sequences.
+    pub fn iter(&self) -> impl ExactSizeIterator<Item = Frames<'_>> + '_ {
+        (0..self.len()).map(move |k| self.get(k))
+    }
+
+    /// All frames of all sequences as one block.
+    pub fn all_frames(&self) -> Frames<'_> {
+        Frames {
+            data: &self.data,
+            dim: self.dim,
+        }
+    }
+
+    /// A new set holding only the given columns of every frame, in that order.
+    pub fn select_columns(&self, columns: &[usize]) -> Result<Self> {
+        crate::check_dims(columns, self.dim)?;
+        let mut data = Vec::with_capacity(self.total_frames() * columns.len());
+        for frame in self.data.chunks_exact(self.dim) {
+            data.extend(columns.iter().map(|&c| frame[c]));
+        }
+        Ok(SequenceSet {
+            data,
+            dim: columns.len(),
+            offsets: self.offsets.clone(),
+        })
+    }
+
+    /// A new set holding the sequences with the given indices, in that order.
+    pub fn subset(&self, indices: &[usize]) -> Result<Self> {
+        let mut seqs = Vec::with_capacity(indices.len());
+        for &k in indices {
+            if k >= self.len() {
+                return Err(EmissionError::InvalidParameter {
+                    name: "indices",
+                    reason: format!("sequence index {k} out of range ({} sequences)", self.len()),
+                });
+            }
+            seqs.push(self.get(k).as_slice());
+        }
+        Self::new(&seqs, self.dim)
+    }
+}

@@ -1,0 +1,138 @@
+//! k-means clustering (Lloyd's algorithm with k-means++ or random seeding),
+//! used to initialise HMMs and mixtures.
+
+use crate::error::{EmissionError, Result};
+use crate::Frames;
+use rand::Rng;
+
+/// How the first centroids are chosen.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Seeding {
+    /// k-means++ (Arthur & Vassilvitskii 2007): each next centroid drawn with
+    /// probability proportional to the squared distance to the nearest chosen one.
+    PlusPlus,
+    /// `k` distinct frames drawn uniformly.
+    Random,
+}
+
+/// Result of [`kmeans`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct KMeans {
+    /// `k × D` centroids, row-major.
+    pub centroids: Vec<f64>,
+    /// Cluster of every frame.
+    pub labels: Vec<usize>,
+    /// Sum of squared distances of the frames to their centroids.
+    pub inertia: f64,
+    /// Lloyd iterations run.
+    pub iterations: usize,
+}
+
+fn sq_dist(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum()
+}
+
+fn nearest(x: &[f64], centroids: &[f64], d: usize) -> (usize, f64) {
+    let mut best = (0, f64::INFINITY);
+    for (j, c) in centroids.chunks_exact(d).enumerate() {
+        let dist = sq_dist(x, c);
+        if dist < best.1 {
+            best = (j, dist);
+        }
+    }
+    best
+}
+
+/// Clusters `frames` into `k` groups; deterministic for a given `rng` state.
+///
+/// Errors when there are fewer frames than clusters. A cluster that empties
+/// during the iterations is re-seeded at the frame farthest from its centroid.
+pub fn kmeans<R: Rng + ?Sized>(frames: Frames<'_>, k: usize, seeding: Seeding, max_iter: usize, rng: &mut R) -> Result<KMeans> {
+    let (n, d) = (frames.len(), frames.dim());
+    if k == 0 || n < k {
+        return Err(EmissionError::InvalidParameter {
+            name: "k",
+            reason: format!("cannot form {k} clusters from {n} frames"),
+        });
+    }
+    let mut centroids = Vec::with_capacity(k * d);
+    match seeding {
+        Seeding::Random => {
+            for idx in rand::seq::index::sample(rng, n, k) {
+                centroids.extend_from_slice(frames.frame(idx));
+            }
+        }
+        Seeding::PlusPlus => {
+            centroids.extend_from_slice(frames.frame(rng.random_range(0..n)));
+            let mut dist: Vec<f64> = frames.iter().map(|x| sq_dist(x, &centroids[..d])).collect();
+            for _ in 1..k {
+                let total: f64 = dist.iter().sum();
+                let idx = if total > 0.0 {
+                    let u = rng.random::<f64>() * total;
+                    let mut acc = 0.0;
+                    dist.iter()
+                        .position(|v| {
+                            acc += v;
+                            u < acc
+                        })
+                        .unwrap_or(n - 1)
+                } else {
+                    rng.random_range(0..n)
+                };
+                let start = centroids.len();
+                centroids.extend_from_slice(frames.frame(idx));
+                for (x, dv) in frames.iter().zip(dist.iter_mut()) {
+                    *dv = dv.min(sq_dist(x, &centroids[start..start + d]));
+                }
+            }
+        }
+    }
+    let mut labels = vec![0; n];
+    let mut iterations = 0;
+    let mut inertia = f64::INFINITY;
+    for it in 0..max_iter.max(1) {
+        iterations = it + 1;
+        let mut changed = false;
+        inertia = 0.0;
+        for (t, x) in frames.iter().enumerate() {
+            let (j, dist) = nearest(x, &centroids, d);
+            changed |= labels[t] != j || it == 0;
+            labels[t] = j;
+            inertia += dist;
+        }
+        if !changed {
+            break;
+        }
+        let mut sums = vec![0.0; k * d];
+        let mut counts = vec![0usize; k];
+        for (t, x) in frames.iter().enumerate() {
+            counts[labels[t]] += 1;
+            for (s, v) in sums[labels[t] * d..(labels[t] + 1) * d].iter_mut().zip(x) {
+                *s += v;
+            }
+        }
+        for j in 0..k {
+            if counts[j] == 0 {
+                let far = (0..n)
+                    .max_by(|&a, &b| {
+                        let da = sq_dist(frames.frame(a), &centroids[labels[a] * d..(labels[a] + 1) * d]);
+                        let db = sq_dist(frames.frame(b), &centroids[labels[b] * d..(labels[b] + 1) * d]);
+                        da.total_cmp(&db)
+                    })
+                    .unwrap_or(0);
+                centroids[j * d..(j + 1) * d].copy_from_slice(frames.frame(far));
+                labels[far] = j;
+            } else {
+                for (c, s) in centroids[j * d..(j + 1) * d].iter_mut().zip(&sums[j * d..(j + 1) * d]) {
+                    *c = s / counts[j] as f64;
+                }
+            }
+        }
+    }
+    Ok(KMeans {
+        centroids,
+        labels,
+        inertia,
+        iterations,
+    })
+}

@@ -1,0 +1,183 @@
+//! Pluggable emission distributions for hidden Markov models and mixtures.
+//!
+//! An [`Emission`] is the set of `S` per-state distributions `b_i(x)` of a
+//! model. The HMM and the GMM are generic over it, so a new distribution plugs
+//! into both without touching either. The trait is shaped around the E- and
+//! M-steps of EM:
+//!
+//! * [`Emission::log_density_into`] writes `log b_i(x_t)` for a whole block of
+//!   frames into a caller-provided `T × S` buffer (no allocation per frame);
+//! * [`Emission::accumulate`] adds the weighted sufficient statistics
+//!   `Σ_t γ_t(i) φ(x_t)` of a block to a [`SufficientStatistics`] value, which
+//!   can be built per thread or per sequence and merged in a fixed order;
+//! * [`Emission::m_step`] re-estimates the parameters from merged statistics
+//!   with explicit [`Regularization`], and reports what it had to do;
+//! * [`Emission::marginal`] restricts every state to a subset of dimensions
+//!   (the human's dimensions of a joint human–robot model);
+//! * [`Emission::sample_into`] draws a frame from one state.
+//!
+//! Implementations: [`Gaussian`] (full, diagonal, spherical and tied
+//! covariance), [`Categorical`], [`Poisson`] and [`Mixture`] (a mixture of any
+//! emission per state, e.g. hmmlearn's GMMHMM).
+
+#![warn(missing_docs)]
+
+pub mod categorical;
+pub mod error;
+pub mod frames;
+pub mod gaussian;
+pub mod kmeans;
+pub mod linalg;
+pub mod mixture;
+pub mod poisson;
+pub mod regularization;
+
+pub use categorical::{Categorical, CategoricalStats};
+pub use error::{EmissionError, Result};
+pub use frames::{Frames, SequenceSet};
+pub use gaussian::{CovarianceType, Gaussian, GaussianStats};
+pub use mixture::{Mixture, MixtureStats};
+pub use poisson::{Poisson, PoissonStats};
+pub use regularization::{CovarianceRegularization, MStepEvent, MStepReport, Regularization};
+
+use rand::Rng;
+use std::fmt::Debug;
+
+/// Weighted sufficient statistics of an emission model, accumulated over any
+/// partition of the data and merged.
+///
+/// Merging is plain addition, so statistics gathered per sequence, per thread
+/// or per machine combine exactly; merging in a fixed order gives results that
+/// do not depend on how the work was split.
+pub trait SufficientStatistics: Clone + Debug + Send + Sync {
+    /// Adds `other` into `self`. Errors if the two come from differently shaped models.
+    fn merge(&mut self, other: &Self) -> Result<()>;
+    /// Total posterior weight `Σ_t Σ_i γ_t(i)` accumulated so far.
+    fn total_weight(&self) -> f64;
+}
+
+/// The emission distributions `b_i(x)`, `i = 0..S`, of an HMM or a mixture.
+pub trait Emission: Clone + Debug + Send + Sync {
+    /// Sufficient statistics for the M-step.
+    type Stats: SufficientStatistics;
+
+    /// Number of states `S`.
+    fn n_states(&self) -> usize;
+
+    /// Dimension `D` of a frame.
+    fn dim(&self) -> usize;
+
+    /// Checks that the frames lie in the support of this emission (dimension,
+    /// valid symbols or counts). Called once per data set before fitting or
+    /// scoring, so that the hot paths need no checks.
+    fn check_frames(&self, frames: Frames<'_>) -> Result<()> {
+        check_dim(self.dim(), frames.dim())
+    }
+
+    /// Writes `out[t·S + i] = log b_i(x_t)` for every frame `t` and state `i`.
+    ///
+    /// `out` must hold `frames.len() · S` values. Frames must have passed
+    /// [`Emission::check_frames`]; values outside the support give `-inf`.
+    fn log_density_into(&self, frames: Frames<'_>, out: &mut [f64]) -> Result<()>;
+
+    /// Allocating convenience form of [`Emission::log_density_into`].
+    fn log_density(&self, frames: Frames<'_>) -> Result<Vec<f64>> {
+        let mut out = vec![0.0; frames.len() * self.n_states()];
+        self.log_density_into(frames, &mut out)?;
+        Ok(out)
+    }
+
+    /// Empty statistics shaped for this model.
+    fn new_stats(&self) -> Self::Stats;
+
+    /// Adds `Σ_t w[t·S + i] φ(x_t)` to the statistics of every state `i`.
+    ///
+    /// `weights` is row-major `T × S` (e.g. the posteriors `γ`).
+    fn accumulate(&self, frames: Frames<'_>, weights: &[f64], stats: &mut Self::Stats)
+        -> Result<()>;
+
+    /// Re-estimates the parameters from `stats` (maximum likelihood, or MAP
+    /// when `reg` is a prior). On error `self` is left unchanged.
+    fn m_step(&mut self, stats: &Self::Stats, reg: &Regularization) -> Result<MStepReport>;
+
+    /// Log-density of the prior implied by `reg` at the current parameters,
+    /// up to a constant; 0 when `reg` is not a prior. EM increases
+    /// `log p(X) + log_prior` monotonically when `reg` is a proper prior.
+    fn log_prior(&self, reg: &Regularization) -> f64 {
+        let _ = reg;
+        0.0
+    }
+
+    /// The same states restricted to the dimensions `dims` (in that order):
+    /// `b_i(x_dims) = ∫ b_i(x) dx_rest`.
+    fn marginal(&self, dims: &[usize]) -> Result<Self>;
+
+    /// Draws one frame from state `state` into `out` (length `D`).
+    fn sample_into<R: Rng + ?Sized>(&self, state: usize, rng: &mut R, out: &mut [f64])
+        -> Result<()>;
+
+    /// Number of free parameters (for AIC/BIC).
+    fn n_parameters(&self) -> usize;
+}
+
+/// Errors unless `found == expected` frame dimension.
+pub fn check_dim(expected: usize, found: usize) -> Result<()> {
+    if expected == found {
+        Ok(())
+    } else {
+        Err(EmissionError::DimensionMismatch {
+            context: "frame dimension",
+            expected,
+            found,
+        })
+    }
+}
+
+/// Errors unless a buffer has length `expected`.
+pub(crate) fn check_len(context: &'static str, expected: usize, found: usize) -> Result<()> {
+    if expected == found {
+        Ok(())
+    } else {
+        Err(EmissionError::DimensionMismatch {
+            context,
+            expected,
+            found,
+        })
+    }
+}
+
+/// Errors unless `state < n_states`.
+pub(crate) fn check_state(state: usize, n_states: usize) -> Result<()> {
+    if state < n_states {
+        Ok(())
+    } else {
+        Err(EmissionError::InvalidParameter {
+            name: "state",
+            reason: format!("state {state} out of range (model has {n_states} states)"),
+        })
+    }
+}
+
+/// Validates a list of marginal dimensions: non-empty, in range, no repeats.
+pub fn check_dims(dims: &[usize], dim: usize) -> Result<()> {
+    let err = |reason| {
+        Err(EmissionError::InvalidDims {
+            dims: dims.to_vec(),
+            dim,
+            reason,
+        })
+    };
+    if dims.is_empty() {
+        return err("no dimension selected");
+    }
+    if dims.iter().any(|&d| d >= dim) {
+        return err("dimension out of range");
+    }
+    let mut seen = vec![false; dim];
+    for &d in dims {
+        if std::mem::replace(&mut seen[d], true) {
+            return err("dimension repeated");
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,238 @@
+//! Independent Poisson counts per dimension:
+//! `log b_i(x) = Σ_d (x_d log λ_{i,d} − λ_{i,d} − log Γ(x_d + 1))`.
+
+use crate::error::{EmissionError, Result};
+use crate::regularization::{MStepEvent, MStepReport, Regularization};
+use crate::{check_dim, check_dims, check_len, check_state, Emission, Frames, SufficientStatistics};
+use rand::Rng;
+use serde::{Deserialize, Serialize};
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+struct PoissonParams {
+    dim: usize,
+    rates: Vec<f64>,
+}
+
+/// `S` states of `D` independent Poisson counts.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(try_from = "PoissonParams", into = "PoissonParams")]
+pub struct Poisson {
+    dim: usize,
+    /// `S × D` rates `λ`, row-major.
+    rates: Vec<f64>,
+    log_rates: Vec<f64>,
+}
+
+impl TryFrom<PoissonParams> for Poisson {
+    type Error = EmissionError;
+    fn try_from(p: PoissonParams) -> Result<Self> {
+        Poisson::new(p.dim, p.rates)
+    }
+}
+
+impl From<Poisson> for PoissonParams {
+    fn from(p: Poisson) -> Self {
+        PoissonParams {
+            dim: p.dim,
+            rates: p.rates,
+        }
+    }
+}
+
+impl Poisson {
+    /// `S = rates.len() / dim` states; every rate finite and non-negative.
+    pub fn new(dim: usize, rates: Vec<f64>) -> Result<Self> {
+        if dim == 0 || rates.is_empty() || rates.len() % dim != 0 {
+            return Err(EmissionError::InvalidParameter {
+                name: "rates",
+                reason: format!("{} values do not form states of dimension {dim}", rates.len()),
+            });
+        }
+        if let Some(k) = rates.iter().position(|r| !(r.is_finite() && *r >= 0.0)) {
+            return Err(EmissionError::InvalidParameter {
+                name: "rates",
+                reason: format!("state {}, dim {}: rate {} is not finite and non-negative", k / dim, k % dim, rates[k]),
+            });
+        }
+        let log_rates = rates.iter().map(|r| r.ln()).collect();
+        Ok(Poisson { dim, rates, log_rates })
+    }
+
+    /// `S × D` rates, row-major.
+    pub fn rates(&self) -> &[f64] {
+        &self.rates
+    }
+
+    /// Unit rates (a template for initialisation).
+    pub fn unit(n_states: usize, dim: usize) -> Result<Self> {
+        Self::new(dim, vec![1.0; n_states * dim])
+    }
+}
+
+fn is_count(x: f64) -> bool {
+    x >= 0.0 && x.fract() == 0.0
+}
+
+/// Weighted count sums per state.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PoissonStats {
+    dim: usize,
+    weight: Vec<f64>,
+    sum: Vec<f64>,
+}
+
+impl SufficientStatistics for PoissonStats {
+    fn merge(&mut self, other: &Self) -> Result<()> {
+        if self.dim != other.dim || self.sum.len() != other.sum.len() {
+            return Err(EmissionError::StatsMismatch("Poisson statistics of another shape".into()));
+        }
+        for (a, b) in self.weight.iter_mut().zip(&other.weight) {
+            *a += b;
+        }
+        for (a, b) in self.sum.iter_mut().zip(&other.sum) {
+            *a += b;
+        }
+        Ok(())
+    }
+
+    fn total_weight(&self) -> f64 {
+        self.weight.iter().sum()
+    }
+}
+
+impl Emission for Poisson {
+    type Stats = PoissonStats;
+
+    fn n_states(&self) -> usize {
+        self.rates.len() / self.dim
+    }
+
+    fn dim(&self) -> usize {
+        self.dim
+    }
+
+    fn check_frames(&self, frames: Frames<'_>) -> Result<()> {
+        check_dim(self.dim, frames.dim())?;
+        for (k, x) in frames.as_slice().iter().enumerate() {
+            if !is_count(*x) {
+                return Err(EmissionError::InvalidValue {
+                    frame: k / self.dim,
+                    column: k % self.dim,
+                    value: *x,
+                    reason: "not a non-negative whole count",
+                });
+            }
+        }
+        Ok(())
+    }
+
+    fn log_density_into(&self, frames: Frames<'_>, out: &mut [f64]) -> Result<()> {
+        check_dim(self.dim, frames.dim())?;
+        let (s, d) = (self.n_states(), self.dim);
+        check_len("log-density output buffer", frames.len() * s, out.len())?;
+        for (x, row) in frames.iter().zip(out.chunks_exact_mut(s)) {
+            let log_fact: f64 = x.iter().map(|v| libm::lgamma(v + 1.0)).sum();
+            let valid = x.iter().all(|v| is_count(*v));
+            for (i, o) in row.iter_mut().enumerate() {
+                if !valid {
+                    *o = f64::NEG_INFINITY;
+                    continue;
+                }
+                let mut acc = -log_fact;
+                for k in 0..d {
+                    let lam = self.rates[i * d + k];
+                    // 0 · log 0 = 0: a zero count has probability e^{−λ} even when λ = 0.
+                    if x[k] > 0.0 {
+                        acc += x[k] * self.log_rates[i * d + k];
+                    }
+                    acc -= lam;
+                }
+                *o = acc;
+            }
+        }
+        Ok(())
+    }
+
+    fn new_stats(&self) -> PoissonStats {
+        PoissonStats {
+            dim: self.dim,
+            weight: vec![0.0; self.n_states()],
+            sum: vec![0.0; self.rates.len()],
+        }
+    }
+
+    fn accumulate(&self, frames: Frames<'_>, weights: &[f64], stats: &mut PoissonStats) -> Result<()> {
+        check_dim(self.dim, frames.dim())?;
+        let (s, d) = (self.n_states(), self.dim);
+        check_len("accumulate weights", frames.len() * s, weights.len())?;
+        if stats.sum.len() != s * d {
+            return Err(EmissionError::StatsMismatch("statistics shaped for another model".into()));
+        }
+        for (t, x) in frames.iter().enumerate() {
+            for i in 0..s {
+                let w = weights[t * s + i];
+                stats.weight[i] += w;
+                for k in 0..d {
+                    stats.sum[i * d + k] += w * x[k];
+                }
+            }
+        }
+        Ok(())
+    }
+
+    fn m_step(&mut self, stats: &PoissonStats, reg: &Regularization) -> Result<MStepReport> {
+        let (s, d) = (self.n_states(), self.dim);
+        if stats.sum.len() != s * d {
+            return Err(EmissionError::StatsMismatch("statistics shaped for another model".into()));
+        }
+        let mut report = MStepReport::default();
+        let mut rates = self.rates.clone();
+        for i in 0..s {
+            let n = stats.weight[i];
+            if n < reg.min_weight().max(f64::MIN_POSITIVE) {
+                report.events.push(MStepEvent::KeptEmptyState {
+                    state: i,
+                    component: None,
+                    weight: n,
+                });
+                continue;
+            }
+            for k in 0..d {
+                rates[i * d + k] = stats.sum[i * d + k] / n;
+            }
+        }
+        *self = Poisson::new(d, rates)?;
+        Ok(report)
+    }
+
+    fn marginal(&self, dims: &[usize]) -> Result<Self> {
+        check_dims(dims, self.dim)?;
+        let rates = self
+            .rates
+            .chunks_exact(self.dim)
+            .flat_map(|r| dims.iter().map(move |&k| r[k]))
+            .collect();
+        Poisson::new(dims.len(), rates)
+    }
+
+    fn sample_into<R: Rng + ?Sized>(&self, state: usize, rng: &mut R, out: &mut [f64]) -> Result<()> {
+        check_state(state, self.n_states())?;
+        check_len("sample output buffer", self.dim, out.len())?;
+        for (k, o) in out.iter_mut().enumerate() {
+            let lam = self.rates[state * self.dim + k];
+            *o = if lam > 0.0 {
+                rng.sample(rand_distr::Poisson::new(lam).map_err(|e| EmissionError::InvalidParameter {
+                    name: "rates",
+                    reason: format!("cannot sample rate {lam}: {e}"),
+                })?)
+            } else {
+                0.0
+            };
+        }
+        Ok(())
+    }
+
+    fn n_parameters(&self) -> usize {
+        self.rates.len()
+    }
+}

@@ -1,0 +1,2 @@
+//! Gaussian mixture models fitted by EM (filled by the GMM/GMR issue).
+#![warn(missing_docs)]

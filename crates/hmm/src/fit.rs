@@ -1,0 +1,482 @@
+//! Baum-Welch (EM) over many sequences, with a parallel, deterministic E-step.
+//!
+//! E-step: for every sequence the posteriors `γ`, expected transitions `Σ_t ξ_t`
+//! and emission statistics `Σ_t γ_t(i) φ(x_t)`. Sequences are grouped into
+//! blocks of consecutive sequences that depend only on the data (never on the
+//! number of threads); blocks run in parallel and their statistics are merged
+//! in block order, so the result is bit-identical for any thread count.
+//!
+//! M-step: `π_i = Σ_k γ^k_0(i) / K`, `a_ij = Σ ξ(i,j) / Σ_j' Σ ξ(i,j')` (zeros
+//! of `A` stay zero), and the emission's own M-step with the regularisation.
+
+use crate::error::{HmmError, Result};
+use crate::init::{initialise, Init};
+use crate::model::Hmm;
+use phasekit_emission::{Emission, MStepReport, Regularization, SequenceSet, SufficientStatistics};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use std::time::Instant;
+
+/// Frames per E-step block: blocks are consecutive sequences holding at least this many frames.
+const BLOCK_FRAMES: usize = 4096;
+
+/// The scale on which the log-likelihood gain is compared with the tolerance.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Convergence {
+    /// `log p(X)` summed over sequences (hmmlearn).
+    Total,
+    /// Mean over sequences of `log p(x^k)` (the paper-compatible protocol).
+    MeanPerSequence,
+    /// `log p(X)` divided by the number of frames.
+    MeanPerFrame,
+}
+
+/// Which parameters the M-step re-estimates (the others stay frozen).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Update {
+    /// Re-estimate the initial distribution `π`.
+    pub start: bool,
+    /// Re-estimate the transition matrix `A`.
+    pub transition: bool,
+    /// Re-estimate the emissions.
+    pub emission: bool,
+}
+
+impl Default for Update {
+    fn default() -> Self {
+        Update {
+            start: true,
+            transition: true,
+            emission: true,
+        }
+    }
+}
+
+/// Expected sufficient statistics of an E-step over a set of sequences.
+#[derive(Debug, Clone)]
+pub struct ExpectedStatistics<S> {
+    /// `Σ_k log p(x^k)`.
+    pub log_likelihood: f64,
+    /// `Σ_k γ^k_0(i)`.
+    pub start: Vec<f64>,
+    /// `Σ_k Σ_t ξ^k_t(i, j)`, `S × S`.
+    pub transitions: Vec<f64>,
+    /// Emission statistics.
+    pub emission: S,
+    /// Number of sequences.
+    pub n_sequences: usize,
+    /// Number of frames.
+    pub n_frames: usize,
+}
+
+impl<S: SufficientStatistics> ExpectedStatistics<S> {
+    /// Adds `other` (statistics of other sequences under the same model).
+    pub fn merge(&mut self, other: &Self) -> Result<()> {
+        self.log_likelihood += other.log_likelihood;
+        for (a, b) in self.start.iter_mut().zip(&other.start) {
+            *a += b;
+        }
+        for (a, b) in self.transitions.iter_mut().zip(&other.transitions) {
+            *a += b;
+        }
+        self.n_sequences += other.n_sequences;
+        self.n_frames += other.n_frames;
+        self.emission.merge(&other.emission)?;
+        Ok(())
+    }
+}
+
+/// Splits sequences into blocks of consecutive sequences with at least `BLOCK_FRAMES` frames.
+fn blocks(data: &SequenceSet) -> Vec<std::ops::Range<usize>> {
+    let mut out = Vec::new();
+    let mut start = 0;
+    let mut frames = 0;
+    for (k, len) in data.lengths().enumerate() {
+        frames += len;
+        if frames >= BLOCK_FRAMES {
+            out.push(start..k + 1);
+            start = k + 1;
+            frames = 0;
+        }
+    }
+    if start < data.len() {
+        out.push(start..data.len());
+    }
+    out
+}
+
+impl<E: Emission> Hmm<E> {
+    fn empty_statistics(&self) -> ExpectedStatistics<E::Stats> {
+        let s = self.n_states();
+        ExpectedStatistics {
+            log_likelihood: 0.0,
+            start: vec![0.0; s],
+            transitions: vec![0.0; s * s],
+            emission: self.emission.new_stats(),
+            n_sequences: 0,
+            n_frames: 0,
+        }
+    }
+
+    fn accumulate_sequence(&self, k: usize, data: &SequenceSet, acc: &mut ExpectedStatistics<E::Stats>) -> Result<()> {
+        let seq = data.get(k);
+        let s = self.n_states();
+        let log_b = self.emission.log_density(seq).map_err(|e| HmmError::from(e).in_sequence(k))?;
+        let mut gamma = vec![0.0; log_b.len()];
+        let (xi, ll) = self.posteriors_into(&log_b, &mut gamma).map_err(|e| e.in_sequence(k))?;
+        acc.log_likelihood += ll;
+        for (a, g) in acc.start.iter_mut().zip(&gamma[..s]) {
+            *a += g;
+        }
+        for (a, x) in acc.transitions.iter_mut().zip(&xi) {
+            *a += x;
+        }
+        acc.n_sequences += 1;
+        acc.n_frames += seq.len();
+        self.emission
+            .accumulate(seq, &gamma, &mut acc.emission)
+            .map_err(|e| HmmError::from(e).in_sequence(k))
+    }
+
+    /// The E-step over all sequences, in parallel on the current rayon pool;
+    /// bit-identical whatever the number of threads. Data must have passed
+    /// [`Hmm::check_sequences`].
+    pub fn expected_statistics(&self, data: &SequenceSet) -> Result<ExpectedStatistics<E::Stats>> {
+        let parts: Vec<Result<ExpectedStatistics<E::Stats>>> = blocks(data)
+            .into_par_iter()
+            .map(|range| {
+                let mut acc = self.empty_statistics();
+                for k in range {
+                    self.accumulate_sequence(k, data, &mut acc)?;
+                }
+                Ok(acc)
+            })
+            .collect();
+        let mut total = self.empty_statistics();
+        for part in parts {
+            total.merge(&part?)?;
+        }
+        Ok(total)
+    }
+
+    /// The M-step: new parameters from expected statistics. Frozen parts are kept;
+    /// a transition row with no expected visits keeps its previous values.
+    pub fn maximise(&self, stats: &ExpectedStatistics<E::Stats>, update: Update, reg: &Regularization) -> Result<(Hmm<E>, MStepReport)> {
+        let s = self.n_states();
+        let mut start = self.start.clone();
+        let mut transition = self.transition.clone();
+        if update.start {
+            let total: f64 = stats.start.iter().sum();
+            if total > 0.0 {
+                start = stats.start.iter().map(|v| v / total).collect();
+            }
+        }
+        if update.transition {
+            for i in 0..s {
+                let row = &stats.transitions[i * s..(i + 1) * s];
+                let total: f64 = row.iter().sum();
+                if total > 0.0 {
+                    for j in 0..s {
+                        transition[i * s + j] = row[j] / total;
+                    }
+                }
+            }
+        }
+        let mut emission = self.emission.clone();
+        let report = if update.emission {
+            emission.m_step(&stats.emission, reg)?
+        } else {
+            MStepReport::default()
+        };
+        let mut hmm = Hmm {
+            start,
+            transition,
+            emission,
+            log_start: Vec::new(),
+            log_transition: Vec::new(),
+        };
+        hmm.normalise();
+        Ok((hmm, report))
+    }
+}
+
+/// Checked settings of Baum-Welch; build with [`BaumWelch::builder`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct BaumWelch {
+    max_iter: usize,
+    tol: f64,
+    convergence: Convergence,
+    regularization: Regularization,
+    update: Update,
+    init: Init,
+    restarts: usize,
+    seed: u64,
+    threads: Option<usize>,
+}
+
+/// Builder of [`BaumWelch`]; [`BaumWelchBuilder::build`] validates once.
+#[derive(Debug, Clone)]
+pub struct BaumWelchBuilder(BaumWelch);
+
+impl Default for BaumWelch {
+    /// 100 iterations, tolerance `1e-4` on the total log-likelihood, no
+    /// regularisation, everything updated, k-bins initialisation, one run, seed 0.
+    fn default() -> Self {
+        BaumWelch {
+            max_iter: 100,
+            tol: 1e-4,
+            convergence: Convergence::Total,
+            regularization: Regularization::default(),
+            update: Update::default(),
+            init: Init::default(),
+            restarts: 1,
+            seed: 0,
+            threads: None,
+        }
+    }
+}
+
+impl BaumWelchBuilder {
+    /// At most `n` M-steps.
+    pub fn max_iter(mut self, n: usize) -> Self {
+        self.0.max_iter = n;
+        self
+    }
+    /// Stop when the log-likelihood gain (on the [`Convergence`] scale) is below `tol`;
+    /// a decrease also stops. `f64::NEG_INFINITY` disables the test.
+    pub fn tol(mut self, tol: f64) -> Self {
+        self.0.tol = tol;
+        self
+    }
+    /// Scale of the convergence test.
+    pub fn convergence(mut self, c: Convergence) -> Self {
+        self.0.convergence = c;
+        self
+    }
+    /// Regularisation of every emission M-step (and of the initialisation).
+    pub fn regularization(mut self, r: Regularization) -> Self {
+        self.0.regularization = r;
+        self
+    }
+    /// Which parameters to re-estimate.
+    pub fn update(mut self, u: Update) -> Self {
+        self.0.update = u;
+        self
+    }
+    /// Initialisation (ignored by [`BaumWelch::fit_from`]).
+    pub fn init(mut self, init: Init) -> Self {
+        self.0.init = init;
+        self
+    }
+    /// Number of runs from different initialisations; the best final objective wins.
+    /// Run `r > 0` uses seed `seed + r`; with k-bins (deterministic) runs `r > 0` start from k-means++.
+    pub fn restarts(mut self, n: usize) -> Self {
+        self.0.restarts = n;
+        self
+    }
+    /// Seed of every random choice.
+    pub fn seed(mut self, seed: u64) -> Self {
+        self.0.seed = seed;
+        self
+    }
+    /// Run on a dedicated pool of `n` threads (default: rayon's global pool).
+    pub fn threads(mut self, n: usize) -> Self {
+        self.0.threads = Some(n);
+        self
+    }
+    /// Validates the settings.
+    pub fn build(self) -> Result<BaumWelch> {
+        let b = self.0;
+        if b.tol.is_nan() {
+            return Err(HmmError::InvalidParameter {
+                name: "tol",
+                reason: "tolerance is NaN".into(),
+            });
+        }
+        if b.restarts == 0 {
+            return Err(HmmError::InvalidParameter {
+                name: "restarts",
+                reason: "at least one run is needed".into(),
+            });
+        }
+        if b.threads == Some(0) {
+            return Err(HmmError::InvalidParameter {
+                name: "threads",
+                reason: "at least one thread is needed".into(),
+            });
+        }
+        if let Init::KBins { smoothing } = b.init {
+            if !(0.0..=1.0).contains(&smoothing) {
+                return Err(HmmError::InvalidParameter {
+                    name: "smoothing",
+                    reason: format!("k-bins smoothing must lie in [0, 1], got {smoothing}"),
+                });
+            }
+        }
+        Ok(b)
+    }
+}
+
+/// What a fit did.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FitReport {
+    /// Number of M-steps of the returned run.
+    pub iterations: usize,
+    /// `log p(X)` (summed over sequences) at every E-step of the returned run; the last entry is the returned model's.
+    pub log_likelihood: Vec<f64>,
+    /// `log p(X) + log prior` at every E-step (equals `log_likelihood` without a prior).
+    pub objective: Vec<f64>,
+    /// Whether the tolerance test stopped the run (rather than `max_iter`).
+    pub converged: bool,
+    /// The emission M-step reports of the returned run, one per iteration.
+    pub m_steps: Vec<MStepReport>,
+    /// Final objective of every run (`None` for a run that failed), in run order.
+    pub restarts: Vec<Option<f64>>,
+    /// Index of the returned run.
+    pub best_restart: usize,
+    /// Wall-clock seconds of the whole fit.
+    pub fit_seconds: f64,
+}
+
+/// A fitted model and its report.
+#[derive(Debug, Clone)]
+pub struct Fitted<E: Emission> {
+    /// The model whose log-likelihood was evaluated last.
+    pub model: Hmm<E>,
+    /// What the fit did.
+    pub report: FitReport,
+}
+
+impl BaumWelch {
+    /// A builder starting from the defaults.
+    pub fn builder() -> BaumWelchBuilder {
+        BaumWelchBuilder(BaumWelch::default())
+    }
+
+    /// The regularisation used.
+    pub fn regularization(&self) -> &Regularization {
+        &self.regularization
+    }
+
+    fn scale(&self, data: &SequenceSet, ll: f64) -> f64 {
+        match self.convergence {
+            Convergence::Total => ll,
+            Convergence::MeanPerSequence => ll / data.len() as f64,
+            Convergence::MeanPerFrame => ll / data.total_frames() as f64,
+        }
+    }
+
+    fn in_pool<T: Send>(&self, f: impl FnOnce() -> Result<T> + Send) -> Result<T> {
+        match self.threads {
+            None => f(),
+            Some(n) => rayon::ThreadPoolBuilder::new()
+                .num_threads(n)
+                .build()
+                .map_err(|e| HmmError::ThreadPool(e.to_string()))?
+                .install(f),
+        }
+    }
+
+    /// Initialises from an emission `template` with `S` states (its parameters
+    /// are ignored, its structure is kept) and runs Baum-Welch.
+    pub fn fit<E: Emission>(&self, template: &E, data: &SequenceSet) -> Result<Fitted<E>> {
+        let clock = Instant::now();
+        if data.is_empty() {
+            return Err(HmmError::NoData);
+        }
+        phasekit_emission::check_dim(template.dim(), data.dim())?;
+        for (k, seq) in data.iter().enumerate() {
+            template.check_frames(seq).map_err(|e| HmmError::from(e).in_sequence(k))?;
+        }
+        let mut best: Option<Fitted<E>> = None;
+        let mut finals = Vec::with_capacity(self.restarts);
+        let mut first_error = None;
+        for r in 0..self.restarts {
+            let mut rng = ChaCha8Rng::seed_from_u64(self.seed.wrapping_add(r as u64));
+            let init = match (r, self.init) {
+                (r, Init::KBins { .. }) if r > 0 => Init::KMeans,
+                (_, init) => init,
+            };
+            let run = initialise(template, data, init, &self.regularization, &mut rng).and_then(|hmm| self.run(hmm, data));
+            match run {
+                Ok(fitted) => {
+                    let obj = *fitted.report.objective.last().unwrap_or(&f64::NEG_INFINITY);
+                    finals.push(Some(obj));
+                    let better = match &best {
+                        None => true,
+                        Some(b) => obj > *b.report.objective.last().unwrap_or(&f64::NEG_INFINITY),
+                    };
+                    if better {
+                        let mut fitted = fitted;
+                        fitted.report.best_restart = r;
+                        best = Some(fitted);
+                    }
+                }
+                Err(e) => {
+                    finals.push(None);
+                    first_error.get_or_insert(e);
+                }
+            }
+        }
+        match best {
+            Some(mut fitted) => {
+                fitted.report.restarts = finals;
+                fitted.report.fit_seconds = clock.elapsed().as_secs_f64();
+                Ok(fitted)
+            }
+            None => Err(first_error.unwrap_or(HmmError::NoData)),
+        }
+    }
+
+    /// Runs Baum-Welch from the given model.
+    pub fn fit_from<E: Emission>(&self, initial: Hmm<E>, data: &SequenceSet) -> Result<Fitted<E>> {
+        let clock = Instant::now();
+        initial.check_sequences(data)?;
+        let mut fitted = self.run(initial, data)?;
+        fitted.report.restarts = vec![fitted.report.objective.last().copied()];
+        fitted.report.fit_seconds = clock.elapsed().as_secs_f64();
+        Ok(fitted)
+    }
+
+    fn run<E: Emission>(&self, mut hmm: Hmm<E>, data: &SequenceSet) -> Result<Fitted<E>> {
+        self.in_pool(|| {
+            let mut log_likelihood = Vec::new();
+            let mut objective = Vec::new();
+            let mut m_steps = Vec::new();
+            let mut converged = false;
+            loop {
+                let stats = hmm.expected_statistics(data)?;
+                let ll = stats.log_likelihood;
+                let obj = ll + hmm.emission.log_prior(&self.regularization);
+                if let Some(prev) = log_likelihood.last() {
+                    if self.scale(data, ll) - self.scale(data, *prev) < self.tol {
+                        converged = true;
+                    }
+                }
+                log_likelihood.push(ll);
+                objective.push(obj);
+                if converged || m_steps.len() >= self.max_iter {
+                    break;
+                }
+                let (next, report) = hmm.maximise(&stats, self.update, &self.regularization)?;
+                hmm = next;
+                m_steps.push(report);
+            }
+            Ok(Fitted {
+                model: hmm,
+                report: FitReport {
+                    iterations: m_steps.len(),
+                    log_likelihood,
+                    objective,
+                    converged,
+                    m_steps,
+                    restarts: Vec::new(),
+                    best_restart: 0,
+                    fit_seconds: 0.0,
+                },
+            })
+        })
+    }
+}

@@ -1,0 +1,2 @@
+//! Transition state clustering (filled by the TSC issue).
+#![warn(missing_docs)]
