@@ -87,6 +87,15 @@ pub fn kmeans<R: Rng + ?Sized>(frames: Frames<'_>, k: usize, seeding: Seeding, m
             }
         }
     }
+    Ok(lloyd(frames, centroids, max_iter))
+}
+
+/// Lloyd iterations from the given `k × D` centroids until the labels stop
+/// changing or `max_iter` is reached. A cluster that empties is re-seeded at
+/// the frame farthest from its centroid.
+pub fn lloyd(frames: Frames<'_>, mut centroids: Vec<f64>, max_iter: usize) -> KMeans {
+    let (n, d) = (frames.len(), frames.dim());
+    let k = centroids.len() / d;
     let mut labels = vec![0; n];
     let mut iterations = 0;
     let mut inertia = f64::INFINITY;
@@ -129,10 +138,10 @@ pub fn kmeans<R: Rng + ?Sized>(frames: Frames<'_>, k: usize, seeding: Seeding, m
             }
         }
     }
-    Ok(KMeans {
+    KMeans {
         centroids,
         labels,
         inertia,
         iterations,
-    })
+    }
 }

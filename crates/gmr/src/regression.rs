@@ -1,0 +1,249 @@
+//! Mixtures of conditionals: GMR weighted by GMM responsibilities or by the HMM
+//! forward variable, batch and frame by frame.
+//!
+//! With weights `h_k` (responsibilities of the input marginal, or the forward
+//! variable `h_t` of the input-marginal HMM), per-state conditional means
+//! `m_k(x) = μ_k^o + R_k (x − μ_k^i)` and covariances `C_k`:
+//! mean `m = Σ_k h_k m_k(x)` and the moment-matched covariance
+//! `Σ_k h_k (C_k + (m_k − m)(m_k − m)ᵀ)` (within-state covariance plus the
+//! spread of the state means).
+
+use crate::conditional::{check_io, Conditional};
+use crate::error::Result;
+use phasekit_emission::{Emission, Frames, Gaussian};
+use phasekit_gmm::Gmm;
+use phasekit_hmm::{ForwardFilter, Hmm};
+use serde::{Deserialize, Serialize};
+
+/// Predicted outputs of a sequence.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Prediction {
+    /// Number of output dims `O`.
+    pub n_out: usize,
+    /// Predicted means, `T × O` row-major.
+    pub mean: Vec<f64>,
+    /// Predictive covariances, `T × O × O` row-major, when requested.
+    pub covariance: Option<Vec<f64>>,
+    /// The weights used at every frame, `T × K` row-major.
+    pub weights: Vec<f64>,
+}
+
+/// The conditionals of every state of a joint Gaussian emission.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Regression {
+    input: Vec<usize>,
+    output: Vec<usize>,
+    conditionals: Vec<Conditional>,
+}
+
+impl Regression {
+    /// Conditions every state of `joint` on `input`, predicting `output`.
+    pub fn new(joint: &Gaussian, input: &[usize], output: &[usize]) -> Result<Self> {
+        check_io(input, output, joint.dim())?;
+        let conditionals = (0..joint.n_states())
+            .map(|k| Conditional::new(joint.mean(k), &joint.covariance(k), input, output, k))
+            .collect::<Result<Vec<_>>>()?;
+        Ok(Regression {
+            input: input.to_vec(),
+            output: output.to_vec(),
+            conditionals,
+        })
+    }
+
+    /// Input dims of the joint model.
+    pub fn input(&self) -> &[usize] {
+        &self.input
+    }
+
+    /// Output dims of the joint model.
+    pub fn output(&self) -> &[usize] {
+        &self.output
+    }
+
+    /// The per-state conditionals.
+    pub fn conditionals(&self) -> &[Conditional] {
+        &self.conditionals
+    }
+
+    /// Number of states `K`.
+    pub fn n_states(&self) -> usize {
+        self.conditionals.len()
+    }
+
+    /// Number of outputs `O`.
+    pub fn n_out(&self) -> usize {
+        self.output.len()
+    }
+
+    /// Mixes the conditionals at input `x_in` with weights `h` (length `K`) into `mean`
+    /// (length `O`) and, if given, `cov` (`O × O`). `scratch` must hold `K × O` values.
+    /// States with zero weight are skipped. No allocation.
+    #[inline]
+    pub fn mix_into(&self, x_in: &[f64], h: &[f64], mean: &mut [f64], cov: Option<&mut [f64]>, scratch: &mut [f64]) {
+        let o = self.n_out();
+        mean.fill(0.0);
+        for ((c, hk), mk) in self.conditionals.iter().zip(h).zip(scratch.chunks_exact_mut(o)) {
+            if *hk == 0.0 {
+                continue;
+            }
+            c.mean_into(x_in, mk);
+            for (m, v) in mean.iter_mut().zip(mk.iter()) {
+                *m += hk * v;
+            }
+        }
+        if let Some(cov) = cov {
+            cov.fill(0.0);
+            for ((c, hk), mk) in self.conditionals.iter().zip(h).zip(scratch.chunks_exact(o)) {
+                if *hk == 0.0 {
+                    continue;
+                }
+                for r in 0..o {
+                    let dr = mk[r] - mean[r];
+                    for q in 0..o {
+                        cov[r * o + q] += hk * (c.covariance()[r * o + q] + dr * (mk[q] - mean[q]));
+                    }
+                }
+            }
+        }
+    }
+
+    /// Mixes over a whole sequence with per-frame weights (`T × K`).
+    fn mix_sequence(&self, frames: Frames<'_>, weights: Vec<f64>, with_covariance: bool) -> Prediction {
+        let (k, o, t) = (self.n_states(), self.n_out(), frames.len());
+        let mut mean = vec![0.0; t * o];
+        let mut cov = with_covariance.then(|| vec![0.0; t * o * o]);
+        let mut scratch = vec![0.0; k * o];
+        for (tt, x) in frames.iter().enumerate() {
+            let c = cov.as_mut().map(|c| &mut c[tt * o * o..(tt + 1) * o * o]);
+            self.mix_into(x, &weights[tt * k..(tt + 1) * k], &mut mean[tt * o..(tt + 1) * o], c, &mut scratch);
+        }
+        Prediction {
+            n_out: o,
+            mean,
+            covariance: cov,
+            weights,
+        }
+    }
+}
+
+/// Static GMR: weights are the responsibilities of the input marginal of a GMM,
+/// `h_k(x_i) = π_k N(x_i; μ_k^i, Σ_k^ii) / Σ_j π_j N(x_i; μ_j^i, Σ_j^ii)`.
+#[derive(Debug, Clone)]
+pub struct GmmRegression {
+    regression: Regression,
+    input_model: Gmm,
+}
+
+impl GmmRegression {
+    /// Regression of `output` on `input` under the joint mixture `gmm`.
+    pub fn new(gmm: &Gmm, input: &[usize], output: &[usize]) -> Result<Self> {
+        let regression = Regression::new(gmm.components(), input, output)?;
+        Ok(GmmRegression {
+            regression,
+            input_model: gmm.marginal(input)?,
+        })
+    }
+
+    /// The conditionals.
+    pub fn regression(&self) -> &Regression {
+        &self.regression
+    }
+
+    /// Predicts the outputs of every frame of `input_frames` (input dims only, in `input` order).
+    pub fn predict(&self, input_frames: Frames<'_>, with_covariance: bool) -> Result<Prediction> {
+        let weights = self.input_model.responsibilities(input_frames)?;
+        Ok(self.regression.mix_sequence(input_frames, weights, with_covariance))
+    }
+}
+
+/// HMM-based GMR: weights are the forward variable `h_t` of the input-marginal HMM,
+/// i.e. the belief from the input (the human's) frames `x^i_{1:t}` alone.
+#[derive(Debug, Clone)]
+pub struct HmmRegression {
+    regression: Regression,
+    input_model: Hmm<Gaussian>,
+}
+
+impl HmmRegression {
+    /// Regression of `output` on `input` under the joint HMM `hmm`.
+    pub fn new(hmm: &Hmm<Gaussian>, input: &[usize], output: &[usize]) -> Result<Self> {
+        let regression = Regression::new(hmm.emission(), input, output)?;
+        Ok(HmmRegression {
+            regression,
+            input_model: hmm.marginal(input)?,
+        })
+    }
+
+    /// The conditionals.
+    pub fn regression(&self) -> &Regression {
+        &self.regression
+    }
+
+    /// The HMM on the input dims.
+    pub fn input_model(&self) -> &Hmm<Gaussian> {
+        &self.input_model
+    }
+
+    /// Predicts a whole sequence (input dims only, in `input` order), causally:
+    /// frame `t` uses `x^i_{1:t}` only.
+    pub fn predict(&self, input_frames: Frames<'_>, with_covariance: bool) -> Result<Prediction> {
+        let forward = self.input_model.forward(input_frames)?;
+        Ok(self.regression.mix_sequence(input_frames, forward.filtered().to_vec(), with_covariance))
+    }
+
+    /// A frame-by-frame predictor for a control loop.
+    pub fn online(&self) -> OnlineRegression {
+        let (k, o) = (self.regression.n_states(), self.regression.n_out());
+        OnlineRegression {
+            filter: self.input_model.filter(),
+            regression: self.regression.clone(),
+            mean: vec![0.0; o],
+            covariance: vec![0.0; o * o],
+            scratch: vec![0.0; k * o],
+        }
+    }
+}
+
+/// Online HMM-GMR: one input frame in, the predicted output (mean and
+/// covariance) out; no allocation per frame.
+#[derive(Debug, Clone)]
+pub struct OnlineRegression {
+    filter: ForwardFilter<Gaussian>,
+    regression: Regression,
+    mean: Vec<f64>,
+    covariance: Vec<f64>,
+    scratch: Vec<f64>,
+}
+
+impl OnlineRegression {
+    /// Takes input frame `x^i_t`, updates the belief and returns the predicted output mean.
+    pub fn step(&mut self, input_frame: &[f64]) -> Result<&[f64]> {
+        let h = self.filter.step(input_frame)?;
+        self.regression.mix_into(input_frame, h, &mut self.mean, None, &mut self.scratch);
+        Ok(&self.mean)
+    }
+
+    /// Like [`OnlineRegression::step`], also computing the predictive covariance
+    /// (read it with [`OnlineRegression::covariance`]).
+    pub fn step_with_covariance(&mut self, input_frame: &[f64]) -> Result<&[f64]> {
+        let h = self.filter.step(input_frame)?;
+        self.regression
+            .mix_into(input_frame, h, &mut self.mean, Some(&mut self.covariance), &mut self.scratch);
+        Ok(&self.mean)
+    }
+
+    /// The predictive covariance of the last [`OnlineRegression::step_with_covariance`], `O × O`.
+    pub fn covariance(&self) -> &[f64] {
+        &self.covariance
+    }
+
+    /// The current belief `h_t` over states.
+    pub fn belief(&self) -> &[f64] {
+        self.filter.belief()
+    }
+
+    /// Starts a new sequence.
+    pub fn reset(&mut self) {
+        self.filter.reset();
+    }
+}
