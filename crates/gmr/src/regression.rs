@@ -154,6 +154,32 @@ impl GmmRegression {
         let weights = self.input_model.responsibilities(input_frames)?;
         Ok(self.regression.mix_sequence(input_frames, weights, with_covariance))
     }
+
+    /// Predicts one frame without allocating: `weights` (length `K`) receives the
+    /// responsibilities, `mean` (`O`) and optionally `cov` (`O × O`) the prediction;
+    /// `scratch` must hold `K × O` values.
+    pub fn predict_one_into(
+        &self,
+        input_frame: &[f64],
+        weights: &mut [f64],
+        mean: &mut [f64],
+        cov: Option<&mut [f64]>,
+        scratch: &mut [f64],
+    ) -> Result<()> {
+        let frame = Frames::new(input_frame, self.regression.input().len())?;
+        self.input_model.components().log_density_into(frame, weights)?;
+        for (w, pi) in weights.iter_mut().zip(self.input_model.weights()) {
+            *w += if *pi > 0.0 { pi.ln() } else { f64::NEG_INFINITY };
+        }
+        let lse = phasekit_emission::linalg::log_sum_exp(weights);
+        if lse == f64::NEG_INFINITY {
+            weights.fill(0.0);
+        } else {
+            weights.iter_mut().for_each(|w| *w = (*w - lse).exp());
+        }
+        self.regression.mix_into(input_frame, weights, mean, cov, scratch);
+        Ok(())
+    }
 }
 
 /// HMM-based GMR: weights are the forward variable `h_t` of the input-marginal HMM,
@@ -240,6 +266,16 @@ impl OnlineRegression {
     /// The current belief `h_t` over states.
     pub fn belief(&self) -> &[f64] {
         self.filter.belief()
+    }
+
+    /// The predicted output mean of the last step.
+    pub fn mean(&self) -> &[f64] {
+        &self.mean
+    }
+
+    /// `log p(x^i_{1:t})` of the input frames seen so far.
+    pub fn log_likelihood(&self) -> f64 {
+        self.filter.log_likelihood()
     }
 
     /// Starts a new sequence.

@@ -17,8 +17,8 @@ pub enum Init {
     /// Temporal k-bins: split every sequence of length `T` at
     /// `round_half_even(linspace(0, T, S + 1))`; state `i` takes the maximum-likelihood
     /// emission of all frames of bin `i` (plus the regularisation). Transitions
-    /// `(1 − ε) LR + ε / S` where `LR` has `a_ii = 1 − S/T̄`, `a_{i,i+1} = S/T̄`
-    /// (last state absorbing, `T̄` the mean length); start `(1 − ε) e_0 + ε / S`.
+    /// `(1 − ε) LR + ε / S` where `LR` has `a_ii = 1 − p`, `a_{i,i+1} = p` with
+    /// `p = min(S/T̄, 1)` (last state absorbing, `T̄` the mean length); start `(1 − ε) e_0 + ε / S`.
     /// `ε = 0` gives a strict left-right model whose zeros Baum-Welch keeps.
     KBins {
         /// Mixing weight `ε` of the uniform distribution.
@@ -115,12 +115,9 @@ pub fn initialise<E: Emission, R: Rng + ?Sized>(
                 .collect();
             let emission = emission_from_weights(template, data, &weights, reg)?;
             let mean_len = data.total_frames() as f64 / data.len() as f64;
-            if mean_len < s as f64 {
-                return Err(HmmError::TooFewFrames(format!(
-                    "k-bins needs sequences at least as long as the number of states: mean length {mean_len:.1} < {s} states"
-                )));
-            }
-            let p = s as f64 / mean_len;
+            // Sequences shorter on average than the number of states would make
+            // `a_ii = 1 − S/T̄` negative: leave every state after one frame then.
+            let p = (s as f64 / mean_len).min(1.0);
             let u = smoothing / s as f64;
             let mut transition = vec![u; s * s];
             for i in 0..s {

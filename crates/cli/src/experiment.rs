@@ -1,0 +1,350 @@
+//! The paper's experiment: for each action and method, several seeds, each
+//! training on a random subset of the training demonstrations and predicting
+//! every test demonstration from the human's frames alone.
+//!
+//! Metric (`../shared/PROTOCOL.md`): per frame, the squared Euclidean error of
+//! the robot's selected position columns (never the appended velocities),
+//! scaled to cm² (`unit_scale = 100` for data in metres); MSE is the mean over
+//! all frames of all test demonstrations; RMSE = √MSE per seed; mean ± std
+//! (population std) over seeds.
+
+use crate::data::{Action, FeatureSpec, Layout};
+use phasekit_emission::{Frames, SequenceSet};
+use phasekit_tsc::{Method, PresetOptions, Roles};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use std::time::Instant;
+
+/// A method to evaluate, with the label it is reported under.
+#[derive(Debug, Clone, PartialEq)]
+pub struct NamedMethod {
+    /// Label in tables (e.g. `hmm:states=7`).
+    pub label: String,
+    /// The method.
+    pub method: Method,
+}
+
+/// Parses `NAME[:key=value,...]` (keys: `states`, `tsc-states`, `window`, `reg`,
+/// `max-iter`, `tol`, `restarts`, `seed`) on top of `defaults`.
+pub fn parse_method(spec: &str, defaults: &PresetOptions) -> Result<NamedMethod, String> {
+    let (name, rest) = spec.split_once(':').unwrap_or((spec, ""));
+    let mut o = defaults.clone();
+    for kv in rest.split(',').filter(|s| !s.is_empty()) {
+        let (k, v) = kv.split_once('=').ok_or_else(|| format!("`{kv}` in `{spec}` is not key=value"))?;
+        let bad = |e: &dyn std::fmt::Display| format!("`{kv}` in `{spec}`: {e}");
+        match k {
+            "states" => o.states = v.parse().map_err(|e| bad(&e))?,
+            "tsc-states" => o.tsc_states = v.parse().map_err(|e| bad(&e))?,
+            "window" => o.window = v.parse().map_err(|e| bad(&e))?,
+            "reg" => o.reg = v.parse().map_err(|e| bad(&e))?,
+            "max-iter" => o.max_iter = v.parse().map_err(|e| bad(&e))?,
+            "tol" => o.tol = v.parse().map_err(|e| bad(&e))?,
+            "restarts" => o.restarts = v.parse().map_err(|e| bad(&e))?,
+            "seed" => o.seed = v.parse().map_err(|e| bad(&e))?,
+            other => return Err(format!("unknown key `{other}` in `{spec}`")),
+        }
+    }
+    let method = Method::preset(name, &o).map_err(|e| e.to_string())?;
+    Ok(NamedMethod {
+        label: spec.to_string(),
+        method,
+    })
+}
+
+/// How the experiment is run.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Protocol {
+    /// Number of seeds (seed `s` draws the training subset with `ChaCha8Rng::seed_from_u64(s)`).
+    pub seeds: usize,
+    /// Training demonstrations per seed; `None`: all but two (the protocol). Equal
+    /// to the number of training demonstrations: one deterministic run.
+    pub train_size: Option<usize>,
+    /// Factor from data units to the reported unit (100: metres → cm).
+    pub unit_scale: f64,
+    /// Standardise features (z-score with the training subset's mean and std) before fitting.
+    pub standardise: bool,
+}
+
+impl Default for Protocol {
+    fn default() -> Self {
+        Protocol {
+            seeds: 100,
+            train_size: None,
+            unit_scale: 100.0,
+            standardise: false,
+        }
+    }
+}
+
+/// One row of the results table.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Row {
+    /// Action (data set folder).
+    pub action: String,
+    /// Method label.
+    pub method: String,
+    /// Mean over seeds of the MSE (unit²).
+    pub mse_mean: f64,
+    /// Population std over seeds of the MSE.
+    pub mse_std: f64,
+    /// Mean over seeds of √MSE (unit).
+    pub rmse_mean: f64,
+    /// Population std over seeds of √MSE.
+    pub rmse_std: f64,
+    /// Seeds that succeeded.
+    pub seeds: usize,
+    /// Seeds whose fit failed, with the first error.
+    pub failures: Vec<(u64, String)>,
+    /// MSE of every seed, in seed order (`None` where the fit failed).
+    pub per_seed_mse: Vec<Option<f64>>,
+    /// Mean training time per seed, seconds.
+    pub fit_seconds: f64,
+    /// Mean prediction time per test frame, microseconds (batch path).
+    pub predict_us_per_frame: f64,
+    /// Total states of the predicting model (first successful seed).
+    pub states: usize,
+}
+
+/// Features of every demonstration of an action, and the layout.
+pub struct Prepared {
+    /// Layout of the features.
+    pub layout: Layout,
+    /// Training demonstrations, `T × D` each.
+    pub train: Vec<Vec<f64>>,
+    /// Test demonstrations.
+    pub test: Vec<Vec<f64>>,
+}
+
+/// Builds the features of an action's demonstrations.
+pub fn prepare(action: &Action, spec: &FeatureSpec) -> Result<Prepared, String> {
+    let mut layout = None;
+    let mut feats = |tables: &[crate::data::Table]| -> Result<Vec<Vec<f64>>, String> {
+        tables
+            .iter()
+            .map(|t| {
+                let (l, f) = spec.features(t).map_err(|e| e.to_string())?;
+                layout = Some(l);
+                Ok(f)
+            })
+            .collect()
+    };
+    let train = feats(&action.train)?;
+    let test = feats(&action.test)?;
+    let layout = layout.ok_or_else(|| format!("action {} has no demonstration", action.name))?;
+    Ok(Prepared { layout, train, test })
+}
+
+/// Mean and population standard deviation.
+pub fn mean_std(v: &[f64]) -> (f64, f64) {
+    if v.is_empty() {
+        return (f64::NAN, f64::NAN);
+    }
+    let n = v.len() as f64;
+    let m = v.iter().sum::<f64>() / n;
+    (m, (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / n).sqrt())
+}
+
+/// Training subset of seed `seed`: `size` of `n` indices, sorted; all when `size ≥ n`.
+pub fn subset(seed: u64, n: usize, size: usize) -> Vec<usize> {
+    if size >= n {
+        return (0..n).collect();
+    }
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut idx = rand::seq::index::sample(&mut rng, n, size).into_vec();
+    idx.sort_unstable();
+    idx
+}
+
+/// Per-dimension mean and std of the frames of `seqs` (std 1 where constant).
+fn standardisation(seqs: &[&Vec<f64>], d: usize) -> (Vec<f64>, Vec<f64>) {
+    let mut mean = vec![0.0; d];
+    let mut n = 0.0;
+    for s in seqs {
+        for f in s.chunks_exact(d) {
+            for (m, v) in mean.iter_mut().zip(f) {
+                *m += v;
+            }
+            n += 1.0;
+        }
+    }
+    mean.iter_mut().for_each(|m| *m /= n);
+    let mut var = vec![0.0; d];
+    for s in seqs {
+        for f in s.chunks_exact(d) {
+            for ((q, v), m) in var.iter_mut().zip(f).zip(&mean) {
+                *q += (v - m).powi(2);
+            }
+        }
+    }
+    let std = var.iter().map(|q| (q / n).sqrt()).map(|s| if s > 0.0 { s } else { 1.0 }).collect();
+    (mean, std)
+}
+
+/// Outcome of one seed of one method.
+struct SeedResult {
+    mse: f64,
+    fit_seconds: f64,
+    predict_seconds: f64,
+    frames: usize,
+    states: usize,
+}
+
+fn run_seed(prep: &Prepared, method: &Method, train_idx: &[usize], protocol: &Protocol) -> Result<SeedResult, String> {
+    let layout = &prep.layout;
+    let d = layout.features.len();
+    let chosen: Vec<&Vec<f64>> = train_idx.iter().map(|&i| &prep.train[i]).collect();
+    let (shift, scale) = if protocol.standardise {
+        standardisation(&chosen, d)
+    } else {
+        (vec![0.0; d], vec![1.0; d])
+    };
+    let norm = |s: &Vec<f64>| -> Vec<f64> { s.chunks_exact(d).flat_map(|f| (0..d).map(|k| (f[k] - shift[k]) / scale[k]).collect::<Vec<_>>()).collect() };
+    let train: Vec<Vec<f64>> = chosen.iter().map(|s| norm(s)).collect();
+    let data = SequenceSet::new(&train, d).map_err(|e| e.to_string())?;
+    let roles = Roles {
+        human: layout.human.clone(),
+        robot: layout.robot.clone(),
+    };
+    let clock = Instant::now();
+    let (model, _) = method.fit(&data, &roles).map_err(|e| e.to_string())?;
+    let fit_seconds = clock.elapsed().as_secs_f64();
+    let predictor = model.predictor(&roles).map_err(|e| e.to_string())?;
+    let o = layout.robot.len();
+    let (mut se, mut frames, mut predict_seconds) = (0.0, 0usize, 0.0);
+    for test in &prep.test {
+        let normed = norm(test);
+        let human = phasekit_tsc::preset::human_frames(Frames::new(&normed, d).map_err(|e| e.to_string())?, &roles);
+        let clock = Instant::now();
+        let pred = predictor
+            .predict(Frames::new(&human, roles.human.len()).map_err(|e| e.to_string())?, false)
+            .map_err(|e| e.to_string())?;
+        predict_seconds += clock.elapsed().as_secs_f64();
+        for (t, f) in test.chunks_exact(d).enumerate() {
+            for &j in &layout.robot_positions {
+                let k = layout.robot[j];
+                let predicted = pred.mean[t * o + j] * scale[k] + shift[k];
+                se += ((predicted - f[k]) * protocol.unit_scale).powi(2);
+            }
+            frames += 1;
+        }
+    }
+    Ok(SeedResult {
+        mse: se / frames as f64,
+        fit_seconds,
+        predict_seconds,
+        frames,
+        states: model.n_states(),
+    })
+}
+
+/// Evaluates `methods` on one action; `progress` is called after every (seed, method).
+pub fn evaluate_action(
+    action: &Action,
+    spec: &FeatureSpec,
+    methods: &[NamedMethod],
+    protocol: &Protocol,
+    progress: &(dyn Fn() + Sync),
+) -> Result<Vec<Row>, String> {
+    let prep = prepare(action, spec)?;
+    if prep.test.is_empty() {
+        return Err(format!("action {} has no test_* demonstration to predict", action.name));
+    }
+    let n = prep.train.len();
+    let size = protocol.train_size.unwrap_or(n.saturating_sub(2)).min(n);
+    if size == 0 {
+        return Err(format!("action {}: no training demonstration left for a subset of size {size}", action.name));
+    }
+    let seeds = if size >= n { 1 } else { protocol.seeds.max(1) };
+    let results: Vec<Vec<Result<SeedResult, String>>> = (0..seeds as u64)
+        .into_par_iter()
+        .map(|seed| {
+            let idx = subset(seed, n, size);
+            methods
+                .iter()
+                .map(|m| {
+                    let r = run_seed(&prep, &m.method, &idx, protocol);
+                    progress();
+                    r
+                })
+                .collect()
+        })
+        .collect();
+    Ok(methods
+        .iter()
+        .enumerate()
+        .map(|(j, m)| {
+            let per_seed: Vec<&Result<SeedResult, String>> = results.iter().map(|r| &r[j]).collect();
+            let ok: Vec<&SeedResult> = per_seed.iter().filter_map(|r| r.as_ref().ok()).collect();
+            let mses: Vec<f64> = ok.iter().map(|r| r.mse).collect();
+            let rmses: Vec<f64> = mses.iter().map(|v| v.sqrt()).collect();
+            let (mse_mean, mse_std) = mean_std(&mses);
+            let (rmse_mean, rmse_std) = mean_std(&rmses);
+            let frames: usize = ok.iter().map(|r| r.frames).sum();
+            Row {
+                action: action.name.clone(),
+                method: m.label.clone(),
+                mse_mean,
+                mse_std,
+                rmse_mean,
+                rmse_std,
+                seeds: ok.len(),
+                failures: per_seed
+                    .iter()
+                    .enumerate()
+                    .filter_map(|(s, r)| r.as_ref().err().map(|e| (s as u64, e.clone())))
+                    .collect(),
+                per_seed_mse: per_seed.iter().map(|r| r.as_ref().ok().map(|x| x.mse)).collect(),
+                fit_seconds: ok.iter().map(|r| r.fit_seconds).sum::<f64>() / ok.len().max(1) as f64,
+                predict_us_per_frame: 1e6 * ok.iter().map(|r| r.predict_seconds).sum::<f64>() / frames.max(1) as f64,
+                states: ok.first().map_or(0, |r| r.states),
+            }
+        })
+        .collect())
+}
+
+/// Paired comparison of `row` against `baseline` over the seeds both completed:
+/// mean relative change of the MSE and fraction of seeds where `row` is lower.
+pub fn paired(row: &Row, baseline: &Row) -> Option<(f64, f64, usize)> {
+    let pairs: Vec<(f64, f64)> = row
+        .per_seed_mse
+        .iter()
+        .zip(&baseline.per_seed_mse)
+        .filter_map(|(a, b)| Some(((*a)?, (*b)?)))
+        .collect();
+    if pairs.is_empty() {
+        return None;
+    }
+    let n = pairs.len() as f64;
+    let change = pairs.iter().map(|(a, b)| (a - b) / b).sum::<f64>() / n;
+    let won = pairs.iter().filter(|(a, b)| a < b).count() as f64 / n;
+    Some((change, won, pairs.len()))
+}
+
+/// The constant-mean baseline: predict the mean robot position of the training
+/// demonstrations at every frame (all training demonstrations).
+pub fn constant_mean_mse(prep: &Prepared, unit_scale: f64) -> f64 {
+    let layout = &prep.layout;
+    let d = layout.features.len();
+    let cols: Vec<usize> = layout.robot_positions.iter().map(|&j| layout.robot[j]).collect();
+    let mut mean = vec![0.0; cols.len()];
+    let mut n = 0.0;
+    for s in &prep.train {
+        for f in s.chunks_exact(d) {
+            for (m, &c) in mean.iter_mut().zip(&cols) {
+                *m += f[c];
+            }
+            n += 1.0;
+        }
+    }
+    mean.iter_mut().for_each(|m| *m /= n);
+    let (mut se, mut frames) = (0.0, 0.0);
+    for s in &prep.test {
+        for f in s.chunks_exact(d) {
+            se += cols.iter().zip(&mean).map(|(&c, m)| ((f[c] - m) * unit_scale).powi(2)).sum::<f64>();
+            frames += 1.0;
+        }
+    }
+    se / frames
+}

@@ -1,0 +1,527 @@
+//! Named methods (presets), fitted models, their predictors and segmentations.
+//!
+//! * `hmm`: the paper's baseline, an HMM on joint frames with HMM-GMR;
+//! * `tsc-hmm`: the paper's TSC-HMM with the default composition (see [`DEFAULT_COMPOSITION`]);
+//!   `tsc-hmm-union`, `tsc-hmm-frozen`, `tsc-hmm-gated` and `tsc-hmm-worst`
+//!   (λ_T trained on the frames the base predicts worst) name the alternatives;
+//! * `gmm-tsc`: Krishnan-style TSC over a GMM; its kept transition clusters join
+//!   the GMM's components and static GMR predicts;
+//! * `gmm`: static GMR from a GMM.
+
+use crate::detect::{dilate, runs, select, Labeller, ViterbiLabeller};
+use crate::error::{Result, TscError};
+use crate::krishnan::{KrishnanSettings, KrishnanTsc, Segmentation};
+use crate::tsc_hmm::{disagreement_flags, Composition, Detector, HmmSettings, Roles, TscHmm, TscSettings};
+use phasekit_emission::{CovarianceType, Emission, Frames, Gaussian, Regularization, SequenceSet};
+use phasekit_gmm::{Em, Gmm, MixtureModel};
+use phasekit_gmr::{GmmRegression, HmmRegression, OnlineRegression, Prediction};
+use phasekit_hmm::Hmm;
+use serde::{Deserialize, Serialize};
+
+/// The composition used by the `tsc-hmm` preset.
+pub const DEFAULT_COMPOSITION: Composition = Composition::Union;
+
+/// Settings of a static GMM (the `gmm` preset and the base of `gmm-tsc`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct GmmSettings {
+    /// Components.
+    pub components: usize,
+    /// `r` added to the covariance diagonals.
+    pub reg: f64,
+    /// At most this many M-steps.
+    pub max_iter: usize,
+    /// Tolerance on the mean log-likelihood per frame.
+    pub tol: f64,
+    /// Runs from k-means++ seeds.
+    pub restarts: usize,
+    /// Seed.
+    pub seed: u64,
+}
+
+impl GmmSettings {
+    fn em(&self) -> Result<Em> {
+        Ok(Em::builder()
+            .max_iter(self.max_iter)
+            .tol(self.tol)
+            .regularization(Regularization::add_diagonal(self.reg)?)
+            .restarts(self.restarts.max(1))
+            .seed(self.seed)
+            .build()?)
+    }
+}
+
+/// A method with all its settings.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "method", rename_all = "kebab-case")]
+pub enum Method {
+    /// HMM on joint frames, HMM-GMR.
+    Hmm(HmmSettings),
+    /// TSC-HMM.
+    TscHmm(TscSettings),
+    /// Krishnan-style TSC over a GMM, static GMR over the GMM and the kept transition clusters.
+    GmmTsc {
+        /// The base mixture.
+        gmm: GmmSettings,
+        /// The TSC settings.
+        tsc: KrishnanSettings,
+    },
+    /// Static GMR.
+    Gmm(GmmSettings),
+}
+
+/// Knobs shared by the presets (the command line's flags).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PresetOptions {
+    /// Base states (components for `gmm`).
+    pub states: usize,
+    /// Transition states (TSC-HMM) or transition clusters (`gmm-tsc`, 0 = BIC).
+    pub tsc_states: usize,
+    /// Dilation `±w` of transition frames (TSC-HMM), window of stacked frames (`gmm-tsc`, ≥ 1).
+    pub window: usize,
+    /// Covariance regularisation.
+    pub reg: f64,
+    /// Maximum iterations.
+    pub max_iter: usize,
+    /// Tolerance.
+    pub tol: f64,
+    /// Restarts.
+    pub restarts: usize,
+    /// Seed.
+    pub seed: u64,
+}
+
+impl Default for PresetOptions {
+    /// The paper-compatible values: 4 states, 3 transition states, window 0, `reg = 1e-2`,
+    /// 40 iterations, tolerance `1e-4`, one run, seed 0.
+    fn default() -> Self {
+        PresetOptions {
+            states: 4,
+            tsc_states: 3,
+            window: 0,
+            reg: 1e-2,
+            max_iter: 40,
+            tol: 1e-4,
+            restarts: 1,
+            seed: 0,
+        }
+    }
+}
+
+/// Names of the presets.
+pub const PRESETS: &[&str] = &["hmm", "tsc-hmm", "tsc-hmm-union", "tsc-hmm-frozen", "tsc-hmm-gated", "tsc-hmm-worst", "gmm-tsc", "gmm"];
+
+impl Method {
+    /// The preset `name` with the given options.
+    pub fn preset(name: &str, o: &PresetOptions) -> Result<Method> {
+        let hmm = HmmSettings {
+            states: o.states,
+            reg: o.reg,
+            max_iter: o.max_iter,
+            tol: o.tol,
+            restarts: o.restarts,
+            seed: o.seed,
+            covariance: CovarianceType::Full,
+        };
+        let tsc = |composition, detector| {
+            Method::TscHmm(TscSettings {
+                base: hmm.clone(),
+                tsc_states: o.tsc_states,
+                window: o.window,
+                min_run: 2,
+                detector,
+                composition,
+            })
+        };
+        let gmm = GmmSettings {
+            components: o.states,
+            reg: o.reg,
+            max_iter: o.max_iter.max(100),
+            tol: 1e-3,
+            restarts: o.restarts.max(3),
+            seed: o.seed,
+        };
+        Ok(match name {
+            "hmm" => Method::Hmm(hmm),
+            "tsc-hmm" => tsc(DEFAULT_COMPOSITION, Detector::Disagreement),
+            "tsc-hmm-union" => tsc(Composition::Union, Detector::Disagreement),
+            "tsc-hmm-frozen" => tsc(Composition::UnionFrozen, Detector::Disagreement),
+            "tsc-hmm-gated" => tsc(Composition::Gated, Detector::Disagreement),
+            "tsc-hmm-worst" => tsc(Composition::Union, Detector::WorstPrediction { fraction: 0.15 }),
+            "gmm" => Method::Gmm(gmm),
+            "gmm-tsc" => Method::GmmTsc {
+                gmm: gmm.clone(),
+                tsc: KrishnanSettings {
+                    components: Some(o.states),
+                    window: o.window.max(1),
+                    transition_clusters: (o.tsc_states > 0).then_some(o.tsc_states),
+                    reg: o.reg,
+                    seed: o.seed,
+                    ..KrishnanSettings::default()
+                },
+            },
+            other => {
+                return Err(TscError::InvalidSetting {
+                    name: "method",
+                    reason: format!("unknown preset `{other}`; known: {}", PRESETS.join(", ")),
+                })
+            }
+        })
+    }
+
+    /// Fits the method to joint training sequences.
+    pub fn fit(&self, data: &SequenceSet, roles: &Roles) -> Result<(Model, FitSummary)> {
+        roles.check(data.dim())?;
+        match self {
+            Method::Hmm(s) => {
+                let (hmm, r) = s.fit(data)?;
+                Ok((Model::Hmm(hmm), FitSummary::from_hmm(&r)))
+            }
+            Method::TscHmm(s) => {
+                let (m, r) = TscHmm::fit(data, roles, s)?;
+                let mut summary = FitSummary::from_hmm(r.union.as_ref().unwrap_or(&r.base));
+                summary.fit_seconds = r.base.fit_seconds + r.transition.fit_seconds + r.union.as_ref().map_or(0.0, |u| u.fit_seconds);
+                summary.transition_segments = Some(r.segments);
+                Ok((Model::TscHmm { model: m, window: s.window }, summary))
+            }
+            Method::Gmm(s) => {
+                let f = s.em()?.fit(&Gaussian::standard(CovarianceType::Full, s.components, data.dim())?, data.all_frames())?;
+                Ok((Model::Gmm(f.model), FitSummary::from_gmm(&f.report)))
+            }
+            Method::GmmTsc { gmm, tsc } => {
+                let ktsc = tsc.fit(data)?;
+                let base = gmm.em()?.fit(&Gaussian::standard(CovarianceType::Full, gmm.components, data.dim())?, data.all_frames())?;
+                let joined = join_mixtures(&base.model, &ktsc.transition_mixture, &ktsc.kept)?;
+                let f = gmm.em()?.fit_from(joined, data.all_frames())?;
+                let mut summary = FitSummary::from_gmm(&f.report);
+                summary.fit_seconds += base.report.fit_seconds;
+                Ok((Model::GmmTsc { tsc: ktsc, mixture: f.model }, summary))
+            }
+        }
+    }
+}
+
+/// A mixture of `a`'s components and the `kept` components of `b`, weights in proportion.
+fn join_mixtures(a: &Gmm, b: &Gmm, kept: &[usize]) -> Result<Gmm> {
+    let (ga, gb, d) = (a.components(), b.components(), a.dim());
+    let mut means = ga.means().to_vec();
+    let mut covs = Vec::new();
+    let mut weights: Vec<f64> = a.weights().to_vec();
+    for k in 0..ga.n_states() {
+        covs.extend(ga.covariance(k).iter().copied());
+    }
+    for &k in kept {
+        means.extend_from_slice(gb.mean(k));
+        covs.extend(gb.covariance(k).iter().copied());
+        weights.push(b.weights()[k]);
+    }
+    let total: f64 = weights.iter().sum();
+    weights.iter_mut().for_each(|w| *w /= total);
+    Ok(MixtureModel::new(weights, Gaussian::full(d, means, covs)?)?)
+}
+
+/// What a fit did, in a form common to every method.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FitSummary {
+    /// M-steps of the model that predicts.
+    pub iterations: usize,
+    /// Its log-likelihood (summed over sequences or frames) at every E-step.
+    pub log_likelihood: Vec<f64>,
+    /// Whether its tolerance test stopped it.
+    pub converged: bool,
+    /// Wall-clock seconds of the whole fit.
+    pub fit_seconds: f64,
+    /// Largest diagonal jitter any M-step needed.
+    pub jitter: f64,
+    /// Number of transition segments, for TSC-HMMs.
+    pub transition_segments: Option<usize>,
+}
+
+impl FitSummary {
+    fn from_hmm(r: &phasekit_hmm::FitReport) -> Self {
+        FitSummary {
+            iterations: r.iterations,
+            log_likelihood: r.log_likelihood.clone(),
+            converged: r.converged,
+            fit_seconds: r.fit_seconds,
+            jitter: r.m_steps.iter().map(|m| m.total_jitter()).fold(0.0, f64::max),
+            transition_segments: None,
+        }
+    }
+
+    fn from_gmm(r: &phasekit_gmm::GmmFitReport) -> Self {
+        FitSummary {
+            iterations: r.iterations,
+            log_likelihood: r.log_likelihood.clone(),
+            converged: r.converged,
+            fit_seconds: r.fit_seconds,
+            jitter: r.m_steps.iter().map(|m| m.total_jitter()).fold(0.0, f64::max),
+            transition_segments: None,
+        }
+    }
+}
+
+/// A fitted model of any method (serialisable).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "kebab-case")]
+pub enum Model {
+    /// An HMM on joint frames.
+    Hmm(Hmm<Gaussian>),
+    /// A TSC-HMM.
+    TscHmm {
+        /// The fitted model.
+        model: TscHmm,
+        /// The dilation used for its transition frames.
+        window: usize,
+    },
+    /// A GMM on joint frames.
+    Gmm(Gmm),
+    /// Krishnan TSC and the joined mixture that predicts.
+    GmmTsc {
+        /// The TSC.
+        tsc: KrishnanTsc,
+        /// The GMM plus kept transition clusters.
+        mixture: Gmm,
+    },
+}
+
+impl Model {
+    /// Joint frame dimension.
+    pub fn dim(&self) -> usize {
+        match self {
+            Model::Hmm(h) => h.dim(),
+            Model::TscHmm { model, .. } => model.base.dim(),
+            Model::Gmm(g) | Model::GmmTsc { mixture: g, .. } => g.dim(),
+        }
+    }
+
+    /// Total number of states (components) used for prediction.
+    pub fn n_states(&self) -> usize {
+        match self {
+            Model::Hmm(h) => h.n_states(),
+            Model::TscHmm { model, .. } => model.union.as_ref().map_or(model.base.n_states() + model.transition.n_states(), |u| u.n_states()),
+            Model::Gmm(g) | Model::GmmTsc { mixture: g, .. } => g.n_components(),
+        }
+    }
+
+    /// The predictor of the robot's dims from the human's.
+    pub fn predictor(&self, roles: &Roles) -> Result<Predictor> {
+        roles.check(self.dim())?;
+        let hmm = |h: &Hmm<Gaussian>| HmmRegression::new(h, &roles.human, &roles.robot);
+        Ok(match self {
+            Model::Hmm(h) => Predictor::Hmm(hmm(h)?),
+            Model::TscHmm { model, .. } => match (&model.union, model.composition) {
+                (Some(u), _) => Predictor::Hmm(hmm(u)?),
+                (None, _) => Predictor::Gated {
+                    base: hmm(&model.base)?,
+                    transition: hmm(&model.transition)?,
+                },
+            },
+            Model::Gmm(g) | Model::GmmTsc { mixture: g, .. } => Predictor::Gmm(GmmRegression::new(g, &roles.human, &roles.robot)?),
+        })
+    }
+
+    /// Segments a joint demonstration: labels, transition frames and their clusters.
+    ///
+    /// HMMs label by Viterbi on joint frames and flag the paper's transition states
+    /// (human-only vs joint filtered argmax disagree); a TSC-HMM dilates them by its window
+    /// and names each run's `λ_T` Viterbi states as clusters; `gmm-tsc` uses
+    /// Krishnan's label changes and kept clusters; `gmm` flags label changes.
+    pub fn segment(&self, seq: Frames<'_>, roles: &Roles) -> Result<Segmentation> {
+        let one = SequenceSet::single(seq.as_slice(), seq.dim())?;
+        let flagged = |flags: &[bool]| flags.iter().enumerate().filter_map(|(t, f)| f.then_some(t)).collect::<Vec<_>>();
+        match self {
+            Model::Hmm(h) => {
+                let labels = ViterbiLabeller(h).label(seq)?;
+                let flags = &disagreement_flags(h, roles, &one)?[0];
+                let transitions = flagged(flags);
+                let clusters = vec![None; transitions.len()];
+                Ok(Segmentation { labels, transitions, clusters })
+            }
+            Model::TscHmm { model, window } => {
+                let labels = ViterbiLabeller(&model.base).label(seq)?;
+                let flags = dilate(&disagreement_flags(&model.base, roles, &one)?[0], *window);
+                let mut transitions = Vec::new();
+                let mut clusters = Vec::new();
+                for r in runs(&flags, 1) {
+                    let sub = seq.slice(r.clone());
+                    let states = model.transition.viterbi(sub)?.states;
+                    transitions.extend(r.clone());
+                    clusters.extend(states.into_iter().map(Some));
+                }
+                Ok(Segmentation { labels, transitions, clusters })
+            }
+            Model::Gmm(g) => {
+                let labels = g.predict(seq)?;
+                let transitions = flagged(&crate::detect::label_changes(&labels, 2));
+                let clusters = vec![None; transitions.len()];
+                Ok(Segmentation { labels, transitions, clusters })
+            }
+            Model::GmmTsc { tsc, .. } => tsc.segment(seq),
+        }
+    }
+}
+
+/// Predicts the robot's dims from the human's, over whole sequences.
+#[derive(Debug, Clone)]
+pub enum Predictor {
+    /// HMM-GMR (the baseline and the union compositions).
+    Hmm(HmmRegression),
+    /// `λ`'s GMR, replaced by `λ_T`'s where `λ_T` explains the human's frame better.
+    Gated {
+        /// GMR of `λ`.
+        base: HmmRegression,
+        /// GMR of `λ_T`.
+        transition: HmmRegression,
+    },
+    /// Static GMR.
+    Gmm(GmmRegression),
+}
+
+impl Predictor {
+    /// Number of predicted dims.
+    pub fn n_out(&self) -> usize {
+        match self {
+            Predictor::Hmm(r) | Predictor::Gated { base: r, .. } => r.regression().n_out(),
+            Predictor::Gmm(r) => r.regression().n_out(),
+        }
+    }
+
+    /// Predicts a sequence of human frames (human dims only), causally.
+    pub fn predict(&self, human: Frames<'_>, with_covariance: bool) -> Result<Prediction> {
+        match self {
+            Predictor::Hmm(r) => Ok(r.predict(human, with_covariance)?),
+            Predictor::Gmm(r) => Ok(r.predict(human, with_covariance)?),
+            Predictor::Gated { base, transition } => {
+                let mut a = base.predict(human, with_covariance)?;
+                let b = transition.predict(human, with_covariance)?;
+                let la = base.input_model().forward(human)?;
+                let lb = transition.input_model().forward(human)?;
+                let o = a.n_out;
+                for (t, (x, y)) in la.log_normalisers().iter().zip(lb.log_normalisers()).enumerate() {
+                    if y > x {
+                        a.mean[t * o..(t + 1) * o].copy_from_slice(&b.mean[t * o..(t + 1) * o]);
+                        if let (Some(ca), Some(cb)) = (a.covariance.as_mut(), b.covariance.as_ref()) {
+                            ca[t * o * o..(t + 1) * o * o].copy_from_slice(&cb[t * o * o..(t + 1) * o * o]);
+                        }
+                    }
+                }
+                Ok(a)
+            }
+        }
+    }
+
+    /// A frame-by-frame predictor.
+    pub fn online(&self) -> OnlinePredictor {
+        let o = self.n_out();
+        match self {
+            Predictor::Hmm(r) => OnlinePredictor::Hmm(r.online()),
+            Predictor::Gated { base, transition } => OnlinePredictor::Gated {
+                base: base.online(),
+                transition: transition.online(),
+                mean: vec![0.0; o],
+                covariance: vec![0.0; o * o],
+            },
+            Predictor::Gmm(r) => {
+                let k = r.regression().n_states();
+                OnlinePredictor::Gmm {
+                    regression: r.clone(),
+                    weights: vec![0.0; k],
+                    mean: vec![0.0; o],
+                    covariance: vec![0.0; o * o],
+                    scratch: vec![0.0; k * o],
+                }
+            }
+        }
+    }
+}
+
+/// Frame-by-frame prediction for a control loop; no allocation per frame.
+#[derive(Debug, Clone)]
+pub enum OnlinePredictor {
+    /// Online HMM-GMR.
+    Hmm(OnlineRegression),
+    /// Two online HMM-GMRs and the likelihood gate.
+    Gated {
+        /// `λ`'s.
+        base: OnlineRegression,
+        /// `λ_T`'s.
+        transition: OnlineRegression,
+        /// Chosen mean.
+        mean: Vec<f64>,
+        /// Chosen covariance.
+        covariance: Vec<f64>,
+    },
+    /// Static GMR, frame by frame.
+    Gmm {
+        /// The regression.
+        regression: GmmRegression,
+        /// Responsibilities of the last frame.
+        weights: Vec<f64>,
+        /// Mean of the last frame.
+        mean: Vec<f64>,
+        /// Covariance of the last frame.
+        covariance: Vec<f64>,
+        /// Scratch.
+        scratch: Vec<f64>,
+    },
+}
+
+impl OnlinePredictor {
+    /// Takes one human frame and returns the predicted robot mean; with
+    /// `with_covariance` also updates [`OnlinePredictor::covariance`].
+    pub fn step(&mut self, human: &[f64], with_covariance: bool) -> Result<&[f64]> {
+        match self {
+            OnlinePredictor::Hmm(r) => Ok(if with_covariance { r.step_with_covariance(human)? } else { r.step(human)? }),
+            OnlinePredictor::Gated {
+                base,
+                transition,
+                mean,
+                covariance,
+            } => {
+                let (la, lb) = (base.log_likelihood(), transition.log_likelihood());
+                base.step_with_covariance(human)?;
+                transition.step_with_covariance(human)?;
+                let use_t = transition.log_likelihood() - lb > base.log_likelihood() - la;
+                let src = if use_t { &*transition } else { &*base };
+                mean.copy_from_slice(src.mean());
+                covariance.copy_from_slice(src.covariance());
+                Ok(mean)
+            }
+            OnlinePredictor::Gmm {
+                regression,
+                weights,
+                mean,
+                covariance,
+                scratch,
+            } => {
+                regression.predict_one_into(human, weights, mean, with_covariance.then_some(&mut covariance[..]), scratch)?;
+                Ok(mean)
+            }
+        }
+    }
+
+    /// Predictive covariance of the last step (when requested), `O × O`.
+    pub fn covariance(&self) -> &[f64] {
+        match self {
+            OnlinePredictor::Hmm(r) => r.covariance(),
+            OnlinePredictor::Gated { covariance, .. } | OnlinePredictor::Gmm { covariance, .. } => covariance,
+        }
+    }
+
+    /// Starts a new demonstration.
+    pub fn reset(&mut self) {
+        match self {
+            OnlinePredictor::Hmm(r) => r.reset(),
+            OnlinePredictor::Gated { base, transition, .. } => {
+                base.reset();
+                transition.reset();
+            }
+            OnlinePredictor::Gmm { .. } => {}
+        }
+    }
+}
+
+/// The predictor's input: the human's dims of joint frames.
+pub fn human_frames(seq: Frames<'_>, roles: &Roles) -> Vec<f64> {
+    select(seq, &roles.human)
+}
