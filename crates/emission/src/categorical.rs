@@ -94,7 +94,10 @@ impl Categorical {
                 reason: "must be at least 1".into(),
             });
         }
-        Self::new(n_symbols, vec![1.0 / n_symbols as f64; n_states * n_symbols])
+        Self::new(
+            n_symbols,
+            vec![1.0 / n_symbols as f64; n_states * n_symbols],
+        )
     }
 
     /// Number of symbols `K`.
@@ -124,7 +127,9 @@ pub struct CategoricalStats {
 impl SufficientStatistics for CategoricalStats {
     fn merge(&mut self, other: &Self) -> Result<()> {
         if self.n_symbols != other.n_symbols || self.counts.len() != other.counts.len() {
-            return Err(EmissionError::StatsMismatch("categorical statistics of another shape".into()));
+            return Err(EmissionError::StatsMismatch(
+                "categorical statistics of another shape".into(),
+            ));
         }
         for (a, b) in self.counts.iter_mut().zip(&other.counts) {
             *a += b;
@@ -188,12 +193,19 @@ impl Emission for Categorical {
         }
     }
 
-    fn accumulate(&self, frames: Frames<'_>, weights: &[f64], stats: &mut CategoricalStats) -> Result<()> {
+    fn accumulate(
+        &self,
+        frames: Frames<'_>,
+        weights: &[f64],
+        stats: &mut CategoricalStats,
+    ) -> Result<()> {
         check_dim(1, frames.dim())?;
         let (s, k) = (self.n_states(), self.n_symbols);
         check_len("accumulate weights", frames.len() * s, weights.len())?;
-        if stats.counts.len() != s * k {
-            return Err(EmissionError::StatsMismatch("statistics shaped for another model".into()));
+        if stats.n_symbols != k || stats.counts.len() != s * k {
+            return Err(EmissionError::StatsMismatch(
+                "statistics shaped for another model".into(),
+            ));
         }
         for (t, x) in frames.as_slice().iter().enumerate() {
             if let Some(sym) = self.symbol(*x) {
@@ -207,8 +219,10 @@ impl Emission for Categorical {
 
     fn m_step(&mut self, stats: &CategoricalStats, reg: &Regularization) -> Result<MStepReport> {
         let (s, k) = (self.n_states(), self.n_symbols);
-        if stats.counts.len() != s * k {
-            return Err(EmissionError::StatsMismatch("statistics shaped for another model".into()));
+        if stats.n_symbols != k || stats.counts.len() != s * k {
+            return Err(EmissionError::StatsMismatch(
+                "statistics shaped for another model".into(),
+            ));
         }
         let a = reg.pseudo_count();
         let mut report = MStepReport::default();
@@ -247,7 +261,12 @@ impl Emission for Categorical {
         Ok(self.clone())
     }
 
-    fn sample_into<R: Rng + ?Sized>(&self, state: usize, rng: &mut R, out: &mut [f64]) -> Result<()> {
+    fn sample_into<R: Rng + ?Sized>(
+        &self,
+        state: usize,
+        rng: &mut R,
+        out: &mut [f64],
+    ) -> Result<()> {
         check_state(state, self.n_states())?;
         check_len("sample output buffer", 1, out.len())?;
         let k = self.n_symbols;

@@ -9,12 +9,16 @@
 //! (the current mean): `n_i = Σ γ`, `s_i = Σ γ (x − c_i)`, `Q_i = Σ γ (x − c_i)(x − c_i)ᵀ`.
 //! The M-step then computes the scatter `Q_i − s_i s_iᵀ / n_i` without the
 //! cancellation that raw second moments suffer when the data sit far from the
-//! origin.
+//! origin. The range of every dimension is tracked as well, so that a constant
+//! dimension (or identical frames) gives an exactly zero scatter, not rounding
+//! noise that would pass for a tiny positive variance.
 
 use crate::error::{EmissionError, Result};
 use crate::linalg::{self, packed_len, packed_lower_sq_norm};
 use crate::regularization::{CovarianceRegularization, MStepEvent, MStepReport, Regularization};
-use crate::{check_dim, check_dims, check_len, check_state, Emission, Frames, SufficientStatistics};
+use crate::{
+    check_dim, check_dims, check_len, check_state, Emission, Frames, SufficientStatistics,
+};
 use nalgebra::DMatrix;
 use rand::Rng;
 use rand_distr::StandardNormal;
@@ -66,6 +70,10 @@ pub struct Gaussian {
     kind: CovarianceType,
     n_states: usize,
     dim: usize,
+    /// True for a [`Gaussian::standard`] template whose means are placeholders:
+    /// its statistics then take each state's first weighted frame as reference
+    /// point instead of the (possibly far) placeholder mean.
+    placeholder: bool,
     /// `S × D`, row-major.
     means: Vec<f64>,
     /// Native shape (see [`CovarianceType::raw_len`]); full matrices are row-major and symmetric.
@@ -130,21 +138,34 @@ impl Gaussian {
     /// full `S × D × D`, diagonal `S × D` (variances), spherical `S` (variances),
     /// tied `D × D`. Full matrices must be symmetric (to `1e-9` relative) and
     /// positive definite; variances must be positive; everything finite.
-    pub fn new(kind: CovarianceType, dim: usize, means: Vec<f64>, covariances: Vec<f64>) -> Result<Self> {
+    pub fn new(
+        kind: CovarianceType,
+        dim: usize,
+        means: Vec<f64>,
+        covariances: Vec<f64>,
+    ) -> Result<Self> {
         if dim == 0 {
             return Err(invalid("dim", "must be at least 1".into()));
         }
         if means.is_empty() || means.len() % dim != 0 {
             return Err(invalid(
                 "means",
-                format!("{} values is not a positive multiple of dim {dim}", means.len()),
+                format!(
+                    "{} values is not a positive multiple of dim {dim}",
+                    means.len()
+                ),
             ));
         }
         let n_states = means.len() / dim;
         if let Some(i) = means.iter().position(|v| !v.is_finite()) {
             return Err(invalid(
                 "means",
-                format!("state {}, dim {}: value {} is not finite", i / dim, i % dim, means[i]),
+                format!(
+                    "state {}, dim {}: value {} is not finite",
+                    i / dim,
+                    i % dim,
+                    means[i]
+                ),
             ));
         }
         let expected = kind.raw_len(n_states, dim);
@@ -166,7 +187,11 @@ impl Gaussian {
         match kind {
             CovarianceType::Diagonal | CovarianceType::Spherical => {
                 if let Some(i) = covariances.iter().position(|v| *v <= 0.0) {
-                    let per = if kind == CovarianceType::Diagonal { dim } else { 1 };
+                    let per = if kind == CovarianceType::Diagonal {
+                        dim
+                    } else {
+                        1
+                    };
                     return Err(EmissionError::NotPositiveDefinite {
                         state: i / per,
                         component: None,
@@ -179,11 +204,16 @@ impl Gaussian {
                     for r in 0..dim {
                         for c in 0..r {
                             let (a, b) = (m[r * dim + c], m[c * dim + r]);
-                            let scale = m[r * dim + r].abs().max(m[c * dim + c].abs()).max(f64::MIN_POSITIVE);
+                            let scale = m[r * dim + r]
+                                .abs()
+                                .max(m[c * dim + c].abs())
+                                .max(f64::MIN_POSITIVE);
                             if (a - b).abs() > 1e-9 * scale {
                                 return Err(invalid(
                                     "covariances",
-                                    format!("covariance {k} is not symmetric at ({r}, {c}): {a} vs {b}"),
+                                    format!(
+                                        "covariance {k} is not symmetric at ({r}, {c}): {a} vs {b}"
+                                    ),
                                 ));
                             }
                         }
@@ -195,6 +225,7 @@ impl Gaussian {
             kind,
             n_states,
             dim,
+            placeholder: false,
             means,
             covariances,
             whiten: Vec::new(),
@@ -231,14 +262,18 @@ impl Gaussian {
         if n_states == 0 {
             return Err(invalid("n_states", "must be at least 1".into()));
         }
-        let eye: Vec<f64> = (0..dim * dim).map(|k| if k % (dim + 1) == 0 { 1.0 } else { 0.0 }).collect();
+        let eye: Vec<f64> = (0..dim * dim)
+            .map(|k| if k % (dim + 1) == 0 { 1.0 } else { 0.0 })
+            .collect();
         let covs = match kind {
             CovarianceType::Full => eye.repeat(n_states),
             CovarianceType::Tied => eye,
             CovarianceType::Diagonal => vec![1.0; n_states * dim],
             CovarianceType::Spherical => vec![1.0; n_states],
         };
-        Self::new(kind, dim, vec![0.0; n_states * dim], covs)
+        let mut g = Self::new(kind, dim, vec![0.0; n_states * dim], covs)?;
+        g.placeholder = true;
+        Ok(g)
     }
 
     /// Recomputes the factors from `means`/`covariances`.
@@ -259,14 +294,19 @@ impl Gaussian {
                     linalg::pack_lower(&l, &mut self.factor);
                 }
                 for i in 0..s {
-                    let ld = if self.kind == CovarianceType::Tied { log_dets[0] } else { log_dets[i] };
+                    let ld = if self.kind == CovarianceType::Tied {
+                        log_dets[0]
+                    } else {
+                        log_dets[i]
+                    };
                     self.log_norm.push(-half_log_2pi - 0.5 * ld);
                 }
             }
             CovarianceType::Diagonal => {
                 for i in 0..s {
                     let v = &self.covariances[i * d..(i + 1) * d];
-                    self.log_norm.push(-half_log_2pi - 0.5 * v.iter().map(|x| x.ln()).sum::<f64>());
+                    self.log_norm
+                        .push(-half_log_2pi - 0.5 * v.iter().map(|x| x.ln()).sum::<f64>());
                     self.factor.extend(v.iter().map(|x| x.sqrt()));
                     self.whiten.extend(v.iter().map(|x| 1.0 / x.sqrt()));
                 }
@@ -306,11 +346,13 @@ impl Gaussian {
     pub fn covariance(&self, i: usize) -> DMatrix<f64> {
         let d = self.dim;
         match self.kind {
-            CovarianceType::Full => DMatrix::from_row_slice(d, d, &self.covariances[i * d * d..(i + 1) * d * d]),
-            CovarianceType::Tied => DMatrix::from_row_slice(d, d, &self.covariances),
-            CovarianceType::Diagonal => {
-                DMatrix::from_diagonal(&nalgebra::DVector::from_column_slice(&self.covariances[i * d..(i + 1) * d]))
+            CovarianceType::Full => {
+                DMatrix::from_row_slice(d, d, &self.covariances[i * d * d..(i + 1) * d * d])
             }
+            CovarianceType::Tied => DMatrix::from_row_slice(d, d, &self.covariances),
+            CovarianceType::Diagonal => DMatrix::from_diagonal(
+                &nalgebra::DVector::from_column_slice(&self.covariances[i * d..(i + 1) * d]),
+            ),
             CovarianceType::Spherical => DMatrix::identity(d, d) * self.covariances[i],
         }
     }
@@ -319,11 +361,13 @@ impl Gaussian {
     pub fn cholesky_factor(&self, i: usize) -> DMatrix<f64> {
         let d = self.dim;
         match self.kind {
-            CovarianceType::Full => linalg::unpack_lower(&self.factor[i * packed_len(d)..(i + 1) * packed_len(d)], d),
-            CovarianceType::Tied => linalg::unpack_lower(&self.factor, d),
-            CovarianceType::Diagonal => {
-                DMatrix::from_diagonal(&nalgebra::DVector::from_column_slice(&self.factor[i * d..(i + 1) * d]))
+            CovarianceType::Full => {
+                linalg::unpack_lower(&self.factor[i * packed_len(d)..(i + 1) * packed_len(d)], d)
             }
+            CovarianceType::Tied => linalg::unpack_lower(&self.factor, d),
+            CovarianceType::Diagonal => DMatrix::from_diagonal(
+                &nalgebra::DVector::from_column_slice(&self.factor[i * d..(i + 1) * d]),
+            ),
             CovarianceType::Spherical => DMatrix::identity(d, d) * self.factor[i],
         }
     }
@@ -349,7 +393,11 @@ impl Gaussian {
             }
             CovarianceType::Diagonal => {
                 let w = &self.whiten[i * d..(i + 1) * d];
-                x.iter().zip(mu).zip(w).map(|((a, m), s)| ((a - m) * s).powi(2)).sum()
+                x.iter()
+                    .zip(mu)
+                    .zip(w)
+                    .map(|((a, m), s)| ((a - m) * s).powi(2))
+                    .sum()
             }
             CovarianceType::Spherical => {
                 let s = self.whiten[i];
@@ -371,7 +419,13 @@ impl Gaussian {
         let q = &stats.sum_sq[i * d * d..(i + 1) * d * d];
         DMatrix::from_fn(d, d, |r, c| {
             let (r, c) = if c <= r { (r, c) } else { (c, r) };
-            q[r * d + c] - s[r] * s[c] / n
+            if stats.is_constant(i, r) || stats.is_constant(i, c) {
+                // Exactly zero: `Q − s sᵀ / n` would leave rounding noise, which
+                // would pass for a tiny positive variance.
+                0.0
+            } else {
+                q[r * d + c] - s[r] * s[c] / n
+            }
         })
     }
 
@@ -407,7 +461,12 @@ impl Gaussian {
             return Ok(cov);
         }
         let mean_var = (cov.trace() / d as f64).abs();
-        let mut jitter = 1e-12 * if mean_var > 0.0 && mean_var.is_finite() { mean_var } else { 1.0 };
+        let mut jitter = 1e-12
+            * if mean_var > 0.0 && mean_var.is_finite() {
+                mean_var
+            } else {
+                1.0
+            };
         while jitter <= reg.max_jitter() {
             let mut c = cov.clone();
             for k in 0..d {
@@ -434,6 +493,52 @@ impl Gaussian {
         })
     }
 
+    /// Makes the variances of one diagonal/spherical state positive, adding
+    /// jitter to all of them (as [`Self::regularised_full`] does to a full
+    /// diagonal) when allowed, or errors naming `state`.
+    fn jitter_variances(
+        vars: &mut [f64],
+        reg: &Regularization,
+        state: usize,
+        events: &mut Vec<MStepEvent>,
+    ) -> Result<()> {
+        let bad = |vars: &[f64]| vars.iter().position(|v| !(*v > 0.0 && v.is_finite()));
+        let Some(k) = bad(vars) else {
+            return Ok(());
+        };
+        if vars.iter().all(|v| v.is_finite()) {
+            let mean_var = (vars.iter().sum::<f64>() / vars.len() as f64).abs();
+            let mut jitter = 1e-12
+                * if mean_var > 0.0 && mean_var.is_finite() {
+                    mean_var
+                } else {
+                    1.0
+                };
+            while jitter <= reg.max_jitter() {
+                let jittered: Vec<f64> = vars.iter().map(|v| v + jitter).collect();
+                if bad(&jittered).is_none() {
+                    vars.copy_from_slice(&jittered);
+                    events.push(MStepEvent::Jitter {
+                        state,
+                        component: None,
+                        amount: jitter,
+                    });
+                    return Ok(());
+                }
+                jitter *= 10.0;
+            }
+        }
+        Err(EmissionError::NotPositiveDefinite {
+            state,
+            component: None,
+            detail: format!(
+                " (variance {} after the M-step, max jitter {:e}; a constant dimension needs covariance regularisation)",
+                vars[k],
+                reg.max_jitter()
+            ),
+        })
+    }
+
     /// Variance update for diagonal/spherical structure: scatter `q` (sum of squared
     /// deviations), weight `n`, `k` pooled dimensions.
     fn regularised_var(q: f64, n: f64, k: f64, d: f64, reg: &Regularization) -> f64 {
@@ -441,7 +546,9 @@ impl Gaussian {
         match reg.covariance() {
             CovarianceRegularization::None => q / (n * k),
             CovarianceRegularization::AddDiagonal(r) => q / (n * k) + r,
-            CovarianceRegularization::InverseWishart { scale, dof } => (q + k * scale) / (k * (n + dof + d + 1.0)),
+            CovarianceRegularization::InverseWishart { scale, dof } => {
+                (q + k * scale) / (k * (n + dof + d + 1.0))
+            }
         }
     }
 }
@@ -467,8 +574,12 @@ fn with_diff<T>(x: &[f64], mu: &[f64], f: impl FnOnce(&[f64]) -> T) -> T {
 pub struct GaussianStats {
     kind: CovarianceType,
     dim: usize,
-    /// Reference point `c_i` per state (`S × D`): the means of the model that created the stats.
+    /// Reference point `c_i` per state (`S × D`): the means of the model that
+    /// created the stats, or (for a placeholder template) the state's first weighted frame.
     shift: Vec<f64>,
+    /// Anchor every state's reference point at its first weighted frame.
+    #[serde(default)]
+    anchor_lazily: bool,
     /// `n_i = Σ_t γ_t(i)`.
     weight: Vec<f64>,
     /// `Σ_t γ_t(i) (x_t − c_i)`, `S × D`.
@@ -476,6 +587,11 @@ pub struct GaussianStats {
     /// Full/tied: lower triangle of `Σ_t γ_t(i) (x_t − c_i)(x_t − c_i)ᵀ`, `S × D × D`;
     /// diagonal/spherical: its diagonal, `S × D`.
     sum_sq: Vec<f64>,
+    /// Smallest and largest value of every dimension over the frames with positive
+    /// weight, `S × D`: a dimension with `lo == hi` is exactly constant, and its
+    /// scatter is exactly zero rather than the rounding noise of `Q − s sᵀ / n`.
+    lo: Vec<f64>,
+    hi: Vec<f64>,
 }
 
 impl GaussianStats {
@@ -483,23 +599,82 @@ impl GaussianStats {
     pub fn weights(&self) -> &[f64] {
         &self.weight
     }
+
+    /// True when every array has the length required by `s` states of dimension
+    /// `d` and structure `kind` (deserialised statistics may not).
+    fn has_shape(&self, kind: CovarianceType, s: usize, d: usize) -> bool {
+        let sq = match kind {
+            CovarianceType::Full | CovarianceType::Tied => s * d * d,
+            CovarianceType::Diagonal | CovarianceType::Spherical => s * d,
+        };
+        self.kind == kind
+            && self.dim == d
+            && self.weight.len() == s
+            && [&self.shift, &self.sum, &self.lo, &self.hi]
+                .iter()
+                .all(|v| v.len() == s * d)
+            && self.sum_sq.len() == sq
+    }
+
+    /// True when dimension `k` took a single value over the frames given to state `i`.
+    fn is_constant(&self, i: usize, k: usize) -> bool {
+        let j = i * self.dim + k;
+        self.lo[j] == self.hi[j]
+    }
 }
 
 impl SufficientStatistics for GaussianStats {
     fn merge(&mut self, other: &Self) -> Result<()> {
-        if self.kind != other.kind || self.dim != other.dim || self.shift != other.shift {
+        let s = self.weight.len();
+        if !self.has_shape(self.kind, s, self.dim) || !other.has_shape(self.kind, s, self.dim) {
             return Err(EmissionError::StatsMismatch(
-                "Gaussian statistics from a different model (structure, dimension or reference point differ)".into(),
+                "Gaussian statistics from a different model (structure or dimension differ)".into(),
             ));
         }
-        for (a, b) in self.weight.iter_mut().zip(&other.weight) {
-            *a += b;
+        let d = self.dim;
+        let full = matches!(self.kind, CovarianceType::Full | CovarianceType::Tied);
+        let sq = if full { d * d } else { d };
+        let mut delta = vec![0.0; d];
+        for i in 0..s {
+            let nb = other.weight[i];
+            let (ca, cb) = (&self.shift[i * d..(i + 1) * d], &other.shift[i * d..(i + 1) * d]);
+            if nb == 0.0 && other.sum[i * d..(i + 1) * d].iter().all(|v| *v == 0.0) {
+                continue;
+            }
+            if self.weight[i] == 0.0 && self.sum[i * d..(i + 1) * d].iter().all(|v| *v == 0.0) && ca != cb {
+                // Nothing accumulated here yet: adopt the other's reference point.
+                self.shift[i * d..(i + 1) * d].copy_from_slice(cb);
+            }
+            let ca = &self.shift[i * d..(i + 1) * d];
+            // Re-centre the other's statistics on our reference point (exact algebra):
+            // s' = s_b + n_b δ, Q' = Q_b + δ s_bᵀ + s_b δᵀ + n_b δ δᵀ with δ = c_b − c_a.
+            for k in 0..d {
+                delta[k] = cb[k] - ca[k];
+            }
+            let sb = &other.sum[i * d..(i + 1) * d];
+            let qb = &other.sum_sq[i * sq..(i + 1) * sq];
+            let qa = &mut self.sum_sq[i * sq..(i + 1) * sq];
+            if full {
+                for r in 0..d {
+                    for c in 0..=r {
+                        qa[r * d + c] += qb[r * d + c] + delta[r] * sb[c] + sb[r] * delta[c] + nb * delta[r] * delta[c];
+                    }
+                }
+            } else {
+                for k in 0..d {
+                    qa[k] += qb[k] + 2.0 * delta[k] * sb[k] + nb * delta[k] * delta[k];
+                }
+            }
+            for k in 0..d {
+                self.sum[i * d + k] += sb[k] + nb * delta[k];
+            }
+            self.weight[i] += nb;
         }
-        for (a, b) in self.sum.iter_mut().zip(&other.sum) {
-            *a += b;
+        for (a, b) in self.lo.iter_mut().zip(&other.lo) {
+            *a = a.min(*b);
         }
-        for (a, b) in self.sum_sq.iter_mut().zip(&other.sum_sq) {
-            *a += b;
+        for (a, b) in self.hi.iter_mut().zip(&other.hi) {
+            *a = a.max(*b);
         }
         Ok(())
     }
@@ -542,24 +717,41 @@ impl Emission for Gaussian {
             kind: self.kind,
             dim: d,
             shift: self.means.clone(),
+            anchor_lazily: self.placeholder,
             weight: vec![0.0; s],
             sum: vec![0.0; s * d],
             sum_sq: vec![0.0; sq],
+            lo: vec![f64::INFINITY; s * d],
+            hi: vec![f64::NEG_INFINITY; s * d],
         }
     }
 
-    fn accumulate(&self, frames: Frames<'_>, weights: &[f64], stats: &mut GaussianStats) -> Result<()> {
+    fn accumulate(
+        &self,
+        frames: Frames<'_>,
+        weights: &[f64],
+        stats: &mut GaussianStats,
+    ) -> Result<()> {
         check_dim(self.dim, frames.dim())?;
         let (s, d) = (self.n_states, self.dim);
         check_len("accumulate weights", frames.len() * s, weights.len())?;
-        if stats.shift.len() != s * d || stats.kind != self.kind {
-            return Err(EmissionError::StatsMismatch("statistics shaped for another model".into()));
+        if !stats.has_shape(self.kind, s, d) {
+            return Err(EmissionError::StatsMismatch(
+                "statistics shaped for another model".into(),
+            ));
         }
         let full = matches!(self.kind, CovarianceType::Full | CovarianceType::Tied);
         let mut diff = vec![0.0; d];
         for i in 0..s {
+            if stats.anchor_lazily && stats.weight[i] == 0.0 {
+                if let Some(t) = (0..frames.len()).find(|&t| weights[t * s + i] != 0.0) {
+                    stats.shift[i * d..(i + 1) * d].copy_from_slice(frames.frame(t));
+                }
+            }
             let c = &stats.shift[i * d..(i + 1) * d];
             let sum = &mut stats.sum[i * d..(i + 1) * d];
+            let lo = &mut stats.lo[i * d..(i + 1) * d];
+            let hi = &mut stats.hi[i * d..(i + 1) * d];
             let mut n = 0.0;
             if full {
                 let q = &mut stats.sum_sq[i * d * d..(i + 1) * d * d];
@@ -570,6 +762,8 @@ impl Emission for Gaussian {
                     }
                     n += w;
                     for k in 0..d {
+                        lo[k] = lo[k].min(x[k]);
+                        hi[k] = hi[k].max(x[k]);
                         diff[k] = x[k] - c[k];
                         sum[k] += w * diff[k];
                     }
@@ -590,6 +784,8 @@ impl Emission for Gaussian {
                     }
                     n += w;
                     for k in 0..d {
+                        lo[k] = lo[k].min(x[k]);
+                        hi[k] = hi[k].max(x[k]);
                         let e = x[k] - c[k];
                         sum[k] += w * e;
                         q[k] += w * e * e;
@@ -603,8 +799,10 @@ impl Emission for Gaussian {
 
     fn m_step(&mut self, stats: &GaussianStats, reg: &Regularization) -> Result<MStepReport> {
         let (s, d) = (self.n_states, self.dim);
-        if stats.kind != self.kind || stats.dim != d || stats.weight.len() != s {
-            return Err(EmissionError::StatsMismatch("statistics shaped for another model".into()));
+        if !stats.has_shape(self.kind, s, d) {
+            return Err(EmissionError::StatsMismatch(
+                "statistics shaped for another model".into(),
+            ));
         }
         let mut report = MStepReport {
             added_diagonal: match reg.covariance() {
@@ -626,7 +824,11 @@ impl Emission for Gaussian {
                 continue;
             }
             for k in 0..d {
-                means[i * d + k] = stats.shift[i * d + k] + stats.sum[i * d + k] / n;
+                means[i * d + k] = if stats.is_constant(i, k) {
+                    stats.lo[i * d + k]
+                } else {
+                    stats.shift[i * d + k] + stats.sum[i * d + k] / n
+                };
             }
         }
         match self.kind {
@@ -635,7 +837,13 @@ impl Emission for Gaussian {
                     if self.kept(i, stats, reg) {
                         continue;
                     }
-                    let cov = Self::regularised_full(Self::scatter_full(stats, i), stats.weight[i], reg, i, &mut report.events)?;
+                    let cov = Self::regularised_full(
+                        Self::scatter_full(stats, i),
+                        stats.weight[i],
+                        reg,
+                        i,
+                        &mut report.events,
+                    )?;
                     for r in 0..d {
                         for c in 0..d {
                             covs[i * d * d + r * d + c] = cov[(r, c)];
@@ -668,6 +876,9 @@ impl Emission for Gaussian {
                     }
                     let n = stats.weight[i];
                     let q = |k: usize| {
+                        if stats.is_constant(i, k) {
+                            return 0.0;
+                        }
                         let sk = stats.sum[i * d + k];
                         stats.sum_sq[i * d + k] - sk * sk / n
                     };
@@ -680,22 +891,20 @@ impl Emission for Gaussian {
                         covs[i] = Self::regularised_var(total, n, d as f64, d as f64, reg);
                     }
                 }
-                let per = if self.kind == CovarianceType::Diagonal { d } else { 1 };
-                if let Some(k) = covs.iter().position(|v| !(*v > 0.0 && v.is_finite())) {
-                    return Err(EmissionError::NotPositiveDefinite {
-                        state: k / per,
-                        component: None,
-                        detail: format!(
-                            " (variance {} after the M-step; a constant dimension needs covariance regularisation)",
-                            covs[k]
-                        ),
-                    });
+                let per = if self.kind == CovarianceType::Diagonal {
+                    d
+                } else {
+                    1
+                };
+                for (i, vars) in covs.chunks_exact_mut(per).enumerate() {
+                    Self::jitter_variances(vars, reg, i, &mut report.events)?;
                 }
             }
         }
         let mut updated = Gaussian {
             means,
             covariances: covs,
+            placeholder: false,
             ..self.clone()
         };
         updated.refactor()?;
@@ -722,7 +931,9 @@ impl Emission for Gaussian {
             CovarianceType::Diagonal | CovarianceType::Spherical => (0..self.n_states)
                 .map(|i| {
                     let tr: f64 = match self.kind {
-                        CovarianceType::Diagonal => self.whiten[i * d..(i + 1) * d].iter().map(|v| v * v).sum(),
+                        CovarianceType::Diagonal => {
+                            self.whiten[i * d..(i + 1) * d].iter().map(|v| v * v).sum()
+                        }
                         _ => d as f64 * self.whiten[i] * self.whiten[i],
                     };
                     term(self.log_det(i), tr)
@@ -739,7 +950,9 @@ impl Emission for Gaussian {
             .map(|(i, k)| self.means[i * d + k])
             .collect();
         let sub = |block: &[f64]| -> Vec<f64> {
-            dims.iter().flat_map(|&r| dims.iter().map(move |&c| block[r * d + c])).collect()
+            dims.iter()
+                .flat_map(|&r| dims.iter().map(move |&c| block[r * d + c]))
+                .collect()
         };
         let covs = match self.kind {
             CovarianceType::Full => self.covariances.chunks_exact(d * d).flat_map(sub).collect(),
@@ -754,7 +967,12 @@ impl Emission for Gaussian {
         Gaussian::new(self.kind, dims.len(), means, covs)
     }
 
-    fn sample_into<R: Rng + ?Sized>(&self, state: usize, rng: &mut R, out: &mut [f64]) -> Result<()> {
+    fn sample_into<R: Rng + ?Sized>(
+        &self,
+        state: usize,
+        rng: &mut R,
+        out: &mut [f64],
+    ) -> Result<()> {
         check_state(state, self.n_states)?;
         let d = self.dim;
         check_len("sample output buffer", d, out.len())?;

@@ -47,7 +47,13 @@ fn nearest(x: &[f64], centroids: &[f64], d: usize) -> (usize, f64) {
 ///
 /// Errors when there are fewer frames than clusters. A cluster that empties
 /// during the iterations is re-seeded at the frame farthest from its centroid.
-pub fn kmeans<R: Rng + ?Sized>(frames: Frames<'_>, k: usize, seeding: Seeding, max_iter: usize, rng: &mut R) -> Result<KMeans> {
+pub fn kmeans<R: Rng + ?Sized>(
+    frames: Frames<'_>,
+    k: usize,
+    seeding: Seeding,
+    max_iter: usize,
+    rng: &mut R,
+) -> Result<KMeans> {
     let (n, d) = (frames.len(), frames.dim());
     if k == 0 || n < k {
         return Err(EmissionError::InvalidParameter {
@@ -87,19 +93,31 @@ pub fn kmeans<R: Rng + ?Sized>(frames: Frames<'_>, k: usize, seeding: Seeding, m
             }
         }
     }
-    Ok(lloyd(frames, centroids, max_iter))
+    lloyd(frames, centroids, max_iter)
 }
 
 /// Lloyd iterations from the given `k × D` centroids until the labels stop
 /// changing or `max_iter` is reached. A cluster that empties is re-seeded at
 /// the frame farthest from its centroid.
-pub fn lloyd(frames: Frames<'_>, mut centroids: Vec<f64>, max_iter: usize) -> KMeans {
+///
+/// Errors when there is no frame, no centroid, or the centroids are not `k × D`.
+pub fn lloyd(frames: Frames<'_>, mut centroids: Vec<f64>, max_iter: usize) -> Result<KMeans> {
     let (n, d) = (frames.len(), frames.dim());
+    if n == 0 || centroids.is_empty() || centroids.len() % d != 0 {
+        return Err(EmissionError::InvalidParameter {
+            name: "centroids",
+            reason: format!(
+                "{} centroid values for {n} frames of dimension {d}: need at least one frame and k × {d} values, k ≥ 1",
+                centroids.len()
+            ),
+        });
+    }
     let k = centroids.len() / d;
     let mut labels = vec![0; n];
     let mut iterations = 0;
     let mut inertia = f64::INFINITY;
-    for it in 0..max_iter.max(1) {
+    let max_iter = max_iter.max(1);
+    for it in 0..max_iter {
         iterations = it + 1;
         let mut changed = false;
         inertia = 0.0;
@@ -109,7 +127,9 @@ pub fn lloyd(frames: Frames<'_>, mut centroids: Vec<f64>, max_iter: usize) -> KM
             labels[t] = j;
             inertia += dist;
         }
-        if !changed {
+        // Stop after an assignment, never after a centroid update, so that the
+        // labels and the inertia returned belong to the centroids returned.
+        if !changed || it + 1 == max_iter {
             break;
         }
         let mut sums = vec![0.0; k * d];
@@ -124,24 +144,33 @@ pub fn lloyd(frames: Frames<'_>, mut centroids: Vec<f64>, max_iter: usize) -> KM
             if counts[j] == 0 {
                 let far = (0..n)
                     .max_by(|&a, &b| {
-                        let da = sq_dist(frames.frame(a), &centroids[labels[a] * d..(labels[a] + 1) * d]);
-                        let db = sq_dist(frames.frame(b), &centroids[labels[b] * d..(labels[b] + 1) * d]);
+                        let da = sq_dist(
+                            frames.frame(a),
+                            &centroids[labels[a] * d..(labels[a] + 1) * d],
+                        );
+                        let db = sq_dist(
+                            frames.frame(b),
+                            &centroids[labels[b] * d..(labels[b] + 1) * d],
+                        );
                         da.total_cmp(&db)
                     })
                     .unwrap_or(0);
                 centroids[j * d..(j + 1) * d].copy_from_slice(frames.frame(far));
                 labels[far] = j;
             } else {
-                for (c, s) in centroids[j * d..(j + 1) * d].iter_mut().zip(&sums[j * d..(j + 1) * d]) {
+                for (c, s) in centroids[j * d..(j + 1) * d]
+                    .iter_mut()
+                    .zip(&sums[j * d..(j + 1) * d])
+                {
                     *c = s / counts[j] as f64;
                 }
             }
         }
     }
-    KMeans {
+    Ok(KMeans {
         centroids,
         labels,
         inertia,
         iterations,
-    }
+    })
 }

@@ -93,8 +93,12 @@ pub trait Emission: Clone + Debug + Send + Sync {
     /// Adds `Σ_t w[t·S + i] φ(x_t)` to the statistics of every state `i`.
     ///
     /// `weights` is row-major `T × S` (e.g. the posteriors `γ`).
-    fn accumulate(&self, frames: Frames<'_>, weights: &[f64], stats: &mut Self::Stats)
-        -> Result<()>;
+    fn accumulate(
+        &self,
+        frames: Frames<'_>,
+        weights: &[f64],
+        stats: &mut Self::Stats,
+    ) -> Result<()>;
 
     /// Re-estimates the parameters from `stats` (maximum likelihood, or MAP
     /// when `reg` is a prior). On error `self` is left unchanged.
@@ -113,8 +117,12 @@ pub trait Emission: Clone + Debug + Send + Sync {
     fn marginal(&self, dims: &[usize]) -> Result<Self>;
 
     /// Draws one frame from state `state` into `out` (length `D`).
-    fn sample_into<R: Rng + ?Sized>(&self, state: usize, rng: &mut R, out: &mut [f64])
-        -> Result<()>;
+    fn sample_into<R: Rng + ?Sized>(
+        &self,
+        state: usize,
+        rng: &mut R,
+        out: &mut [f64],
+    ) -> Result<()>;
 
     /// Number of free parameters (for AIC/BIC).
     fn n_parameters(&self) -> usize;

@@ -60,7 +60,11 @@ pub fn packed_lower_sq_norm(packed: &[f64], v: &[f64]) -> f64 {
 #[inline]
 pub fn packed_lower_mul(packed: &[f64], z: &[f64], out: &mut [f64]) {
     for (r, o) in out.iter_mut().enumerate() {
-        *o = packed_row(packed, r).iter().zip(&z[..=r]).map(|(a, b)| a * b).sum();
+        *o = packed_row(packed, r)
+            .iter()
+            .zip(&z[..=r])
+            .map(|(a, b)| a * b)
+            .sum();
     }
 }
 

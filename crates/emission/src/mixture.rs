@@ -69,10 +69,12 @@ impl<E: Emission> Mixture<E> {
     /// One mixture per entry of `components` (each with `M` states, all of one
     /// dimension); `weights` is `S × M` row-major with rows summing to 1.
     pub fn new(weights: Vec<f64>, components: Vec<E>) -> Result<Self> {
-        let first = components.first().ok_or_else(|| EmissionError::InvalidParameter {
-            name: "components",
-            reason: "a mixture emission needs at least one state".into(),
-        })?;
+        let first = components
+            .first()
+            .ok_or_else(|| EmissionError::InvalidParameter {
+                name: "components",
+                reason: "a mixture emission needs at least one state".into(),
+            })?;
         let (m, d) = (first.n_states(), first.dim());
         for (i, c) in components.iter().enumerate() {
             if c.n_states() != m || c.dim() != d {
@@ -86,9 +88,16 @@ impl<E: Emission> Mixture<E> {
                 });
             }
         }
-        check_len("mixture weights (states × components)", components.len() * m, weights.len())?;
+        check_len(
+            "mixture weights (states × components)",
+            components.len() * m,
+            weights.len(),
+        )?;
         crate::categorical::check_stochastic_rows("weights", &weights, m)?;
-        let log_weights = weights.iter().map(|w| if *w > 0.0 { w.ln() } else { f64::NEG_INFINITY }).collect();
+        let log_weights = weights
+            .iter()
+            .map(|w| if *w > 0.0 { w.ln() } else { f64::NEG_INFINITY })
+            .collect();
         Ok(Mixture {
             weights,
             log_weights,
@@ -135,14 +144,20 @@ pub struct MixtureStats<S> {
 impl<S: SufficientStatistics> SufficientStatistics for MixtureStats<S> {
     fn merge(&mut self, other: &Self) -> Result<()> {
         if self.weight.len() != other.weight.len() || self.inner.len() != other.inner.len() {
-            return Err(EmissionError::StatsMismatch("mixture statistics of another shape".into()));
+            return Err(EmissionError::StatsMismatch(
+                "mixture statistics of another shape".into(),
+            ));
         }
-        for (a, b) in self.weight.iter_mut().zip(&other.weight) {
+        // Merge into a copy so that a mismatch found in a later state's inner
+        // statistics leaves `self` untouched.
+        let mut merged = self.clone();
+        for (a, b) in merged.weight.iter_mut().zip(&other.weight) {
             *a += b;
         }
-        for (a, b) in self.inner.iter_mut().zip(&other.inner) {
+        for (a, b) in merged.inner.iter_mut().zip(&other.inner) {
             a.merge(b)?;
         }
+        *self = merged;
         Ok(())
     }
 
@@ -187,11 +202,18 @@ impl<E: Emission> Emission for Mixture<E> {
         }
     }
 
-    fn accumulate(&self, frames: Frames<'_>, weights: &[f64], stats: &mut Self::Stats) -> Result<()> {
+    fn accumulate(
+        &self,
+        frames: Frames<'_>,
+        weights: &[f64],
+        stats: &mut Self::Stats,
+    ) -> Result<()> {
         let (s, m, t) = (self.n_states(), self.n_components(), frames.len());
         check_len("accumulate weights", t * s, weights.len())?;
         if stats.inner.len() != s || stats.weight.len() != s * m {
-            return Err(EmissionError::StatsMismatch("statistics shaped for another model".into()));
+            return Err(EmissionError::StatsMismatch(
+                "statistics shaped for another model".into(),
+            ));
         }
         with_scratch(t * m, |scratch| {
             for i in 0..s {
@@ -200,7 +222,11 @@ impl<E: Emission> Emission for Mixture<E> {
                     let g = weights[tt * s + i];
                     let lse = log_sum_exp(row);
                     for (k, v) in row.iter_mut().enumerate() {
-                        *v = if g == 0.0 || lse == f64::NEG_INFINITY { 0.0 } else { g * (*v - lse).exp() };
+                        *v = if g == 0.0 || lse == f64::NEG_INFINITY {
+                            0.0
+                        } else {
+                            g * (*v - lse).exp()
+                        };
                         stats.weight[i * m + k] += *v;
                     }
                 }
@@ -213,7 +239,9 @@ impl<E: Emission> Emission for Mixture<E> {
     fn m_step(&mut self, stats: &Self::Stats, reg: &Regularization) -> Result<MStepReport> {
         let (s, m) = (self.n_states(), self.n_components());
         if stats.inner.len() != s || stats.weight.len() != s * m {
-            return Err(EmissionError::StatsMismatch("statistics shaped for another model".into()));
+            return Err(EmissionError::StatsMismatch(
+                "statistics shaped for another model".into(),
+            ));
         }
         let a = reg.pseudo_count();
         let mut report = MStepReport::default();
@@ -233,14 +261,18 @@ impl<E: Emission> Emission for Mixture<E> {
             for k in 0..m {
                 weights[i * m + k] = (row[k] + a) / (n + a * m as f64);
             }
-            let inner = components[i].m_step(&stats.inner[i], reg).map_err(|e| match e {
-                EmissionError::NotPositiveDefinite { state, detail, .. } => EmissionError::NotPositiveDefinite {
-                    state: i,
-                    component: Some(state),
-                    detail,
-                },
-                other => other,
-            })?;
+            let inner = components[i]
+                .m_step(&stats.inner[i], reg)
+                .map_err(|e| match e {
+                    EmissionError::NotPositiveDefinite { state, detail, .. } => {
+                        EmissionError::NotPositiveDefinite {
+                            state: i,
+                            component: Some(state),
+                            detail,
+                        }
+                    }
+                    other => other,
+                })?;
             report.absorb_components(i, inner);
         }
         *self = Mixture::new(weights, components)?;
@@ -249,16 +281,33 @@ impl<E: Emission> Emission for Mixture<E> {
 
     fn log_prior(&self, reg: &Regularization) -> f64 {
         let a = reg.pseudo_count();
-        let w = if a > 0.0 { a * self.log_weights.iter().sum::<f64>() } else { 0.0 };
-        w + self.components.iter().map(|c| c.log_prior(reg)).sum::<f64>()
+        let w = if a > 0.0 {
+            a * self.log_weights.iter().sum::<f64>()
+        } else {
+            0.0
+        };
+        w + self
+            .components
+            .iter()
+            .map(|c| c.log_prior(reg))
+            .sum::<f64>()
     }
 
     fn marginal(&self, dims: &[usize]) -> Result<Self> {
-        let components = self.components.iter().map(|c| c.marginal(dims)).collect::<Result<Vec<_>>>()?;
+        let components = self
+            .components
+            .iter()
+            .map(|c| c.marginal(dims))
+            .collect::<Result<Vec<_>>>()?;
         Mixture::new(self.weights.clone(), components)
     }
 
-    fn sample_into<R: Rng + ?Sized>(&self, state: usize, rng: &mut R, out: &mut [f64]) -> Result<()> {
+    fn sample_into<R: Rng + ?Sized>(
+        &self,
+        state: usize,
+        rng: &mut R,
+        out: &mut [f64],
+    ) -> Result<()> {
         check_state(state, self.n_states())?;
         let m = self.n_components();
         let k = crate::categorical::sample_index(&self.weights[state * m..(state + 1) * m], rng);
@@ -266,6 +315,11 @@ impl<E: Emission> Emission for Mixture<E> {
     }
 
     fn n_parameters(&self) -> usize {
-        self.n_states() * (self.n_components() - 1) + self.components.iter().map(|c| c.n_parameters()).sum::<usize>()
+        self.n_states() * (self.n_components() - 1)
+            + self
+                .components
+                .iter()
+                .map(|c| c.n_parameters())
+                .sum::<usize>()
     }
 }

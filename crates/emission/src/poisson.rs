@@ -3,7 +3,9 @@
 
 use crate::error::{EmissionError, Result};
 use crate::regularization::{MStepEvent, MStepReport, Regularization};
-use crate::{check_dim, check_dims, check_len, check_state, Emission, Frames, SufficientStatistics};
+use crate::{
+    check_dim, check_dims, check_len, check_state, Emission, Frames, SufficientStatistics,
+};
 use rand::Rng;
 use serde::{Deserialize, Serialize};
 
@@ -45,17 +47,29 @@ impl Poisson {
         if dim == 0 || rates.is_empty() || rates.len() % dim != 0 {
             return Err(EmissionError::InvalidParameter {
                 name: "rates",
-                reason: format!("{} values do not form states of dimension {dim}", rates.len()),
+                reason: format!(
+                    "{} values do not form states of dimension {dim}",
+                    rates.len()
+                ),
             });
         }
         if let Some(k) = rates.iter().position(|r| !(r.is_finite() && *r >= 0.0)) {
             return Err(EmissionError::InvalidParameter {
                 name: "rates",
-                reason: format!("state {}, dim {}: rate {} is not finite and non-negative", k / dim, k % dim, rates[k]),
+                reason: format!(
+                    "state {}, dim {}: rate {} is not finite and non-negative",
+                    k / dim,
+                    k % dim,
+                    rates[k]
+                ),
             });
         }
         let log_rates = rates.iter().map(|r| r.ln()).collect();
-        Ok(Poisson { dim, rates, log_rates })
+        Ok(Poisson {
+            dim,
+            rates,
+            log_rates,
+        })
     }
 
     /// `S × D` rates, row-major.
@@ -81,10 +95,20 @@ pub struct PoissonStats {
     sum: Vec<f64>,
 }
 
+impl PoissonStats {
+    /// True when the arrays fit `s` states of dimension `d` (deserialised statistics may not).
+    fn has_shape(&self, s: usize, d: usize) -> bool {
+        self.dim == d && self.weight.len() == s && self.sum.len() == s * d
+    }
+}
+
 impl SufficientStatistics for PoissonStats {
     fn merge(&mut self, other: &Self) -> Result<()> {
-        if self.dim != other.dim || self.sum.len() != other.sum.len() {
-            return Err(EmissionError::StatsMismatch("Poisson statistics of another shape".into()));
+        let s = self.weight.len();
+        if !self.has_shape(s, self.dim) || !other.has_shape(s, self.dim) {
+            return Err(EmissionError::StatsMismatch(
+                "Poisson statistics of another shape".into(),
+            ));
         }
         for (a, b) in self.weight.iter_mut().zip(&other.weight) {
             *a += b;
@@ -161,12 +185,19 @@ impl Emission for Poisson {
         }
     }
 
-    fn accumulate(&self, frames: Frames<'_>, weights: &[f64], stats: &mut PoissonStats) -> Result<()> {
+    fn accumulate(
+        &self,
+        frames: Frames<'_>,
+        weights: &[f64],
+        stats: &mut PoissonStats,
+    ) -> Result<()> {
         check_dim(self.dim, frames.dim())?;
         let (s, d) = (self.n_states(), self.dim);
         check_len("accumulate weights", frames.len() * s, weights.len())?;
-        if stats.sum.len() != s * d {
-            return Err(EmissionError::StatsMismatch("statistics shaped for another model".into()));
+        if !stats.has_shape(s, d) {
+            return Err(EmissionError::StatsMismatch(
+                "statistics shaped for another model".into(),
+            ));
         }
         for (t, x) in frames.iter().enumerate() {
             for i in 0..s {
@@ -182,8 +213,10 @@ impl Emission for Poisson {
 
     fn m_step(&mut self, stats: &PoissonStats, reg: &Regularization) -> Result<MStepReport> {
         let (s, d) = (self.n_states(), self.dim);
-        if stats.sum.len() != s * d {
-            return Err(EmissionError::StatsMismatch("statistics shaped for another model".into()));
+        if !stats.has_shape(s, d) {
+            return Err(EmissionError::StatsMismatch(
+                "statistics shaped for another model".into(),
+            ));
         }
         let mut report = MStepReport::default();
         let mut rates = self.rates.clone();
@@ -215,15 +248,22 @@ impl Emission for Poisson {
         Poisson::new(dims.len(), rates)
     }
 
-    fn sample_into<R: Rng + ?Sized>(&self, state: usize, rng: &mut R, out: &mut [f64]) -> Result<()> {
+    fn sample_into<R: Rng + ?Sized>(
+        &self,
+        state: usize,
+        rng: &mut R,
+        out: &mut [f64],
+    ) -> Result<()> {
         check_state(state, self.n_states())?;
         check_len("sample output buffer", self.dim, out.len())?;
         for (k, o) in out.iter_mut().enumerate() {
             let lam = self.rates[state * self.dim + k];
             *o = if lam > 0.0 {
-                rng.sample(rand_distr::Poisson::new(lam).map_err(|e| EmissionError::InvalidParameter {
-                    name: "rates",
-                    reason: format!("cannot sample rate {lam}: {e}"),
+                rng.sample(rand_distr::Poisson::new(lam).map_err(|e| {
+                    EmissionError::InvalidParameter {
+                        name: "rates",
+                        reason: format!("cannot sample rate {lam}: {e}"),
+                    }
                 })?)
             } else {
                 0.0

@@ -69,7 +69,10 @@ impl Regularization {
     /// Add `r·I` to every covariance after the M-step (`r ≥ 0`).
     pub fn add_diagonal(r: f64) -> Result<Self> {
         Ok(Regularization {
-            covariance: CovarianceRegularization::AddDiagonal(nonneg("covariance regularisation", r)?),
+            covariance: CovarianceRegularization::AddDiagonal(nonneg(
+                "covariance regularisation",
+                r,
+            )?),
             ..Self::default()
         })
     }
@@ -173,12 +176,16 @@ impl MStepReport {
         self.added_diagonal = self.added_diagonal.max(inner.added_diagonal);
         for e in inner.events {
             self.events.push(match e {
-                MStepEvent::KeptEmptyState { state: c, weight, .. } => MStepEvent::KeptEmptyState {
+                MStepEvent::KeptEmptyState {
+                    state: c, weight, ..
+                } => MStepEvent::KeptEmptyState {
                     state,
                     component: Some(c),
                     weight,
                 },
-                MStepEvent::Jitter { state: c, amount, .. } => MStepEvent::Jitter {
+                MStepEvent::Jitter {
+                    state: c, amount, ..
+                } => MStepEvent::Jitter {
                     state,
                     component: Some(c),
                     amount,
