@@ -130,7 +130,10 @@ impl Table {
 
     /// Column `c` as a vector.
     pub fn column(&self, c: usize) -> Vec<f64> {
-        self.data.chunks_exact(self.columns.len()).map(|r| r[c]).collect()
+        self.data
+            .chunks_exact(self.columns.len())
+            .map(|r| r[c])
+            .collect()
     }
 }
 
@@ -158,7 +161,11 @@ fn check_unique(path: &Path, columns: &[String]) -> Result<()> {
 /// Reads a CSV file with a header row; every cell must be a finite number.
 pub fn read_csv(path: &Path) -> Result<Table> {
     let file = std::fs::File::open(path).map_err(|e| io_err(path, e))?;
-    let mut reader = csv::ReaderBuilder::new().has_headers(true).flexible(true).trim(csv::Trim::All).from_reader(file);
+    let mut reader = csv::ReaderBuilder::new()
+        .has_headers(true)
+        .flexible(true)
+        .trim(csv::Trim::All)
+        .from_reader(file);
     let header = reader.headers().map_err(|e| io_err(path, e))?.clone();
     if header.is_empty() || header.iter().all(|h| h.is_empty()) {
         return Err(DataError::Empty {
@@ -196,7 +203,13 @@ pub fn read_csv(path: &Path) -> Result<Table> {
                 value: cell.to_string(),
                 reason,
             };
-            let v: f64 = cell.parse().map_err(|_| bad(if cell.is_empty() { "empty cell" } else { "not a number" }))?;
+            let v: f64 = cell.parse().map_err(|_| {
+                bad(if cell.is_empty() {
+                    "empty cell"
+                } else {
+                    "not a number"
+                })
+            })?;
             if !v.is_finite() {
                 return Err(bad("not a finite number"));
             }
@@ -229,21 +242,34 @@ pub fn read_npy(path: &Path) -> Result<Table> {
         return Err(npy_err(format!("shape {shape:?} is not 2-D")));
     }
     let (rows, cols) = (shape[0] as usize, shape[1] as usize);
-    let expected = rows.checked_mul(cols).filter(|n| n.saturating_mul(4) <= bytes.len()).ok_or_else(|| {
-        npy_err(format!("header claims shape {rows} × {cols}, more than the file's {} bytes hold", bytes.len()))
-    })?;
+    let expected = rows
+        .checked_mul(cols)
+        .filter(|n| n.saturating_mul(4) <= bytes.len())
+        .ok_or_else(|| {
+            npy_err(format!(
+                "header claims shape {rows} × {cols}, more than the file's {} bytes hold",
+                bytes.len()
+            ))
+        })?;
     let fortran = npy.order() == npyz::Order::Fortran;
     let values: Vec<f64> = match npy.dtype() {
         npyz::DType::Plain(t) if t.type_char() == npyz::TypeChar::Float && t.size_field() == 8 => {
             npy.into_vec::<f64>().map_err(|e| npy_err(e.to_string()))?
         }
         npyz::DType::Plain(t) if t.type_char() == npyz::TypeChar::Float && t.size_field() == 4 => {
-            npy.into_vec::<f32>().map_err(|e| npy_err(e.to_string()))?.into_iter().map(f64::from).collect()
+            npy.into_vec::<f32>()
+                .map_err(|e| npy_err(e.to_string()))?
+                .into_iter()
+                .map(f64::from)
+                .collect()
         }
         other => return Err(npy_err(format!("dtype {} is not a float", other.descr()))),
     };
     if values.len() != expected {
-        return Err(npy_err(format!("{} values for shape {rows} × {cols}", values.len())));
+        return Err(npy_err(format!(
+            "{} values for shape {rows} × {cols}",
+            values.len()
+        )));
     }
     if rows == 0 || cols == 0 {
         return Err(DataError::Empty {
@@ -254,7 +280,11 @@ pub fn read_npy(path: &Path) -> Result<Table> {
     let mut data = vec![0.0; expected];
     for r in 0..rows {
         for c in 0..cols {
-            data[r * cols + c] = if fortran { values[c * rows + r] } else { values[r * cols + c] };
+            data[r * cols + c] = if fortran {
+                values[c * rows + r]
+            } else {
+                values[r * cols + c]
+            };
         }
     }
     let columns: Vec<String> = (0..cols).map(|c| format!("c{c}")).collect();
@@ -332,7 +362,9 @@ fn resolve(path: &Path, columns: &[String], patterns: &[String]) -> Result<Vec<u
     let mut out: Vec<usize> = Vec::new();
     for p in patterns {
         let pat = glob::Pattern::new(p).map_err(|e| DataError::Selection(format!("`{p}`: {e}")))?;
-        let hits: Vec<usize> = (0..columns.len()).filter(|&c| pat.matches(&columns[c])).collect();
+        let hits: Vec<usize> = (0..columns.len())
+            .filter(|&c| pat.matches(&columns[c]))
+            .collect();
         if hits.is_empty() {
             return Err(DataError::UnknownColumn {
                 path: path.to_path_buf(),
@@ -353,14 +385,23 @@ impl FeatureSpec {
     /// Resolves the patterns against a table's columns.
     pub fn layout(&self, table: &Table) -> Result<(Layout, Vec<usize>, Vec<usize>)> {
         if self.human.is_empty() || self.robot.is_empty() {
-            return Err(DataError::Selection("both --human and --robot columns are needed".into()));
+            return Err(DataError::Selection(
+                "both --human and --robot columns are needed".into(),
+            ));
         }
         let h = resolve(&table.path, &table.columns, &self.human)?;
         let r = resolve(&table.path, &table.columns, &self.robot)?;
         if let Some(c) = h.iter().find(|c| r.contains(c)) {
-            return Err(DataError::Selection(format!("column `{}` is selected for both the human and the robot", table.columns[*c])));
+            return Err(DataError::Selection(format!(
+                "column `{}` is selected for both the human and the robot",
+                table.columns[*c]
+            )));
         }
-        let names = |idx: &[usize]| idx.iter().map(|&c| table.columns[c].clone()).collect::<Vec<_>>();
+        let names = |idx: &[usize]| {
+            idx.iter()
+                .map(|&c| table.columns[c].clone())
+                .collect::<Vec<_>>()
+        };
         let (hn, rn) = (names(&h), names(&r));
         let hv = matches!(self.velocity, Velocity::Both | Velocity::Human);
         let rv = matches!(self.velocity, Velocity::Both | Velocity::Robot);
@@ -423,8 +464,12 @@ fn sorted_files(dir: &Path, prefix: &str) -> Result<Vec<PathBuf>> {
         .filter_map(|e| e.ok().map(|e| e.path()))
         .filter(|p| {
             p.is_file()
-                && p.file_name().and_then(|n| n.to_str()).is_some_and(|n| n.starts_with(prefix))
-                && p.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("csv") || e.eq_ignore_ascii_case("npy"))
+                && p.file_name()
+                    .and_then(|n| n.to_str())
+                    .is_some_and(|n| n.starts_with(prefix))
+                && p.extension()
+                    .and_then(|e| e.to_str())
+                    .is_some_and(|e| e.eq_ignore_ascii_case("csv") || e.eq_ignore_ascii_case("npy"))
         })
         .collect();
     files.sort();
@@ -436,8 +481,18 @@ pub fn check_same_columns(tables: &[Table]) -> Result<()> {
     if let Some(first) = tables.first() {
         for t in &tables[1..] {
             if t.columns != first.columns {
-                let detail = match t.columns.iter().zip(&first.columns).position(|(a, b)| a != b) {
-                    Some(i) => format!("column {} is `{}`, not `{}`", i + 1, t.columns[i], first.columns[i]),
+                let detail = match t
+                    .columns
+                    .iter()
+                    .zip(&first.columns)
+                    .position(|(a, b)| a != b)
+                {
+                    Some(i) => format!(
+                        "column {} is `{}`, not `{}`",
+                        i + 1,
+                        t.columns[i],
+                        first.columns[i]
+                    ),
                     None => format!("{} columns, not {}", t.columns.len(), first.columns.len()),
                 };
                 return Err(DataError::ColumnsDiffer {
@@ -453,7 +508,12 @@ pub fn check_same_columns(tables: &[Table]) -> Result<()> {
 
 /// Loads one action folder (`train_*.csv|npy`, `test_*.csv|npy`).
 pub fn load_action(dir: &Path) -> Result<Action> {
-    let read = |files: Vec<PathBuf>| files.iter().map(|p| read_table(p)).collect::<Result<Vec<_>>>();
+    let read = |files: Vec<PathBuf>| {
+        files
+            .iter()
+            .map(|p| read_table(p))
+            .collect::<Result<Vec<_>>>()
+    };
     let train = read(sorted_files(dir, "train_")?)?;
     let test = read(sorted_files(dir, "test_")?)?;
     if train.is_empty() {
@@ -464,7 +524,11 @@ pub fn load_action(dir: &Path) -> Result<Action> {
     }
     let all: Vec<Table> = train.iter().chain(&test).cloned().collect();
     check_same_columns(&all)?;
-    let name = dir.file_name().and_then(|n| n.to_str()).unwrap_or("data").to_string();
+    let name = dir
+        .file_name()
+        .and_then(|n| n.to_str())
+        .unwrap_or("data")
+        .to_string();
     Ok(Action { name, train, test })
 }
 
@@ -482,7 +546,11 @@ pub fn load_dataset(dir: &Path) -> Result<Vec<Action>> {
     subdirs.sort();
     let actions: Vec<Action> = subdirs
         .iter()
-        .filter(|d| sorted_files(d, "train_").map(|f| !f.is_empty()).unwrap_or(false))
+        .filter(|d| {
+            sorted_files(d, "train_")
+                .map(|f| !f.is_empty())
+                .unwrap_or(false)
+        })
         .map(|d| load_action(d))
         .collect::<Result<_>>()?;
     if actions.is_empty() {

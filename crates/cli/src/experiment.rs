@@ -32,7 +32,9 @@ pub fn parse_method(spec: &str, defaults: &PresetOptions) -> Result<NamedMethod,
     let (name, rest) = spec.split_once(':').unwrap_or((spec, ""));
     let mut o = defaults.clone();
     for kv in rest.split(',').filter(|s| !s.is_empty()) {
-        let (k, v) = kv.split_once('=').ok_or_else(|| format!("`{kv}` in `{spec}` is not key=value"))?;
+        let (k, v) = kv
+            .split_once('=')
+            .ok_or_else(|| format!("`{kv}` in `{spec}` is not key=value"))?;
         let bad = |e: &dyn std::fmt::Display| format!("`{kv}` in `{spec}`: {e}");
         match k {
             "states" => o.states = v.parse().map_err(|e| bad(&e))?,
@@ -133,7 +135,11 @@ pub fn prepare(action: &Action, spec: &FeatureSpec) -> Result<Prepared, String> 
     let train = feats(&action.train)?;
     let test = feats(&action.test)?;
     let layout = layout.ok_or_else(|| format!("action {} has no demonstration", action.name))?;
-    Ok(Prepared { layout, train, test })
+    Ok(Prepared {
+        layout,
+        train,
+        test,
+    })
 }
 
 /// Mean and population standard deviation.
@@ -143,7 +149,10 @@ pub fn mean_std(v: &[f64]) -> (f64, f64) {
     }
     let n = v.len() as f64;
     let m = v.iter().sum::<f64>() / n;
-    (m, (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / n).sqrt())
+    (
+        m,
+        (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / n).sqrt(),
+    )
 }
 
 /// Training subset of seed `seed`: `size` of `n` indices, sorted; all when `size ≥ n`.
@@ -178,7 +187,11 @@ fn standardisation(seqs: &[&Vec<f64>], d: usize) -> (Vec<f64>, Vec<f64>) {
             }
         }
     }
-    let std = var.iter().map(|q| (q / n).sqrt()).map(|s| if s > 0.0 { s } else { 1.0 }).collect();
+    let std = var
+        .iter()
+        .map(|q| (q / n).sqrt())
+        .map(|s| if s > 0.0 { s } else { 1.0 })
+        .collect();
     (mean, std)
 }
 
@@ -191,7 +204,12 @@ struct SeedResult {
     states: usize,
 }
 
-fn run_seed(prep: &Prepared, method: &Method, train_idx: &[usize], protocol: &Protocol) -> Result<SeedResult, String> {
+fn run_seed(
+    prep: &Prepared,
+    method: &Method,
+    train_idx: &[usize],
+    protocol: &Protocol,
+) -> Result<SeedResult, String> {
     let layout = &prep.layout;
     let d = layout.features.len();
     let chosen: Vec<&Vec<f64>> = train_idx.iter().map(|&i| &prep.train[i]).collect();
@@ -200,7 +218,15 @@ fn run_seed(prep: &Prepared, method: &Method, train_idx: &[usize], protocol: &Pr
     } else {
         (vec![0.0; d], vec![1.0; d])
     };
-    let norm = |s: &Vec<f64>| -> Vec<f64> { s.chunks_exact(d).flat_map(|f| (0..d).map(|k| (f[k] - shift[k]) / scale[k]).collect::<Vec<_>>()).collect() };
+    let norm = |s: &Vec<f64>| -> Vec<f64> {
+        s.chunks_exact(d)
+            .flat_map(|f| {
+                (0..d)
+                    .map(|k| (f[k] - shift[k]) / scale[k])
+                    .collect::<Vec<_>>()
+            })
+            .collect()
+    };
     let train: Vec<Vec<f64>> = chosen.iter().map(|s| norm(s)).collect();
     let data = SequenceSet::new(&train, d).map_err(|e| e.to_string())?;
     let roles = Roles {
@@ -215,10 +241,16 @@ fn run_seed(prep: &Prepared, method: &Method, train_idx: &[usize], protocol: &Pr
     let (mut se, mut frames, mut predict_seconds) = (0.0, 0usize, 0.0);
     for test in &prep.test {
         let normed = norm(test);
-        let human = phasekit_tsc::preset::human_frames(Frames::new(&normed, d).map_err(|e| e.to_string())?, &roles);
+        let human = phasekit_tsc::preset::human_frames(
+            Frames::new(&normed, d).map_err(|e| e.to_string())?,
+            &roles,
+        );
         let clock = Instant::now();
         let pred = predictor
-            .predict(Frames::new(&human, roles.human.len()).map_err(|e| e.to_string())?, false)
+            .predict(
+                Frames::new(&human, roles.human.len()).map_err(|e| e.to_string())?,
+                false,
+            )
             .map_err(|e| e.to_string())?;
         predict_seconds += clock.elapsed().as_secs_f64();
         for (t, f) in test.chunks_exact(d).enumerate() {
@@ -249,12 +281,18 @@ pub fn evaluate_action(
 ) -> Result<Vec<Row>, String> {
     let prep = prepare(action, spec)?;
     if prep.test.is_empty() {
-        return Err(format!("action {} has no test_* demonstration to predict", action.name));
+        return Err(format!(
+            "action {} has no test_* demonstration to predict",
+            action.name
+        ));
     }
     let n = prep.train.len();
     let size = protocol.train_size.unwrap_or(n.saturating_sub(2)).min(n);
     if size == 0 {
-        return Err(format!("action {}: no training demonstration left for a subset of size {size}", action.name));
+        return Err(format!(
+            "action {}: no training demonstration left for a subset of size {size}",
+            action.name
+        ));
     }
     let seeds = if size >= n { 1 } else { protocol.seeds.max(1) };
     let results: Vec<Vec<Result<SeedResult, String>>> = (0..seeds as u64)
@@ -275,7 +313,8 @@ pub fn evaluate_action(
         .iter()
         .enumerate()
         .map(|(j, m)| {
-            let per_seed: Vec<&Result<SeedResult, String>> = results.iter().map(|r| &r[j]).collect();
+            let per_seed: Vec<&Result<SeedResult, String>> =
+                results.iter().map(|r| &r[j]).collect();
             let ok: Vec<&SeedResult> = per_seed.iter().filter_map(|r| r.as_ref().ok()).collect();
             let mses: Vec<f64> = ok.iter().map(|r| r.mse).collect();
             let rmses: Vec<f64> = mses.iter().map(|v| v.sqrt()).collect();
@@ -295,9 +334,13 @@ pub fn evaluate_action(
                     .enumerate()
                     .filter_map(|(s, r)| r.as_ref().err().map(|e| (s as u64, e.clone())))
                     .collect(),
-                per_seed_mse: per_seed.iter().map(|r| r.as_ref().ok().map(|x| x.mse)).collect(),
+                per_seed_mse: per_seed
+                    .iter()
+                    .map(|r| r.as_ref().ok().map(|x| x.mse))
+                    .collect(),
                 fit_seconds: ok.iter().map(|r| r.fit_seconds).sum::<f64>() / ok.len().max(1) as f64,
-                predict_us_per_frame: 1e6 * ok.iter().map(|r| r.predict_seconds).sum::<f64>() / frames.max(1) as f64,
+                predict_us_per_frame: 1e6 * ok.iter().map(|r| r.predict_seconds).sum::<f64>()
+                    / frames.max(1) as f64,
                 states: ok.first().map_or(0, |r| r.states),
             }
         })
@@ -327,7 +370,11 @@ pub fn paired(row: &Row, baseline: &Row) -> Option<(f64, f64, usize)> {
 pub fn constant_mean_mse(prep: &Prepared, unit_scale: f64) -> f64 {
     let layout = &prep.layout;
     let d = layout.features.len();
-    let cols: Vec<usize> = layout.robot_positions.iter().map(|&j| layout.robot[j]).collect();
+    let cols: Vec<usize> = layout
+        .robot_positions
+        .iter()
+        .map(|&j| layout.robot[j])
+        .collect();
     let mut mean = vec![0.0; cols.len()];
     let mut n = 0.0;
     for s in &prep.train {
@@ -342,7 +389,11 @@ pub fn constant_mean_mse(prep: &Prepared, unit_scale: f64) -> f64 {
     let (mut se, mut frames) = (0.0, 0.0);
     for s in &prep.test {
         for f in s.chunks_exact(d) {
-            se += cols.iter().zip(&mean).map(|(&c, m)| ((f[c] - m) * unit_scale).powi(2)).sum::<f64>();
+            se += cols
+                .iter()
+                .zip(&mean)
+                .map(|(&c, m)| ((f[c] - m) * unit_scale).powi(2))
+                .sum::<f64>();
             frames += 1.0;
         }
     }

@@ -1,7 +1,32 @@
 //! Library side of the `phasekit` command: reading demonstrations, building
-//! features, and the paper-compatible evaluation protocol.
+//! features, the paper-compatible evaluation protocol, model files, and the
+//! commands themselves (`fit`, `segment`, `predict`, `stream`, `evaluate`,
+//! `plot`, `demo`).
 
 #![warn(missing_docs)]
 
+pub mod cli;
+pub mod commands;
 pub mod data;
+pub mod error;
 pub mod experiment;
+pub mod model_file;
+pub mod output;
+pub mod pipeline;
+pub mod plot;
+
+pub use error::{CliError, Result};
+
+/// Runs a parsed command line.
+pub fn run(cli: cli::Cli) -> Result<()> {
+    use cli::Command;
+    match &cli.command {
+        Command::Fit(a) => commands::fit::run(a),
+        Command::Segment(a) => commands::segment::run(a),
+        Command::Predict(a) => commands::predict::run(a),
+        Command::Stream(a) => commands::stream::run(a),
+        Command::Evaluate(a) => commands::evaluate::run(a),
+        Command::Plot(a) => commands::plot::run(a),
+        Command::Demo(a) => commands::demo::run(a),
+    }
+}

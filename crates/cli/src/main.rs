@@ -1,6 +1,11 @@
-//! The `phasekit` command (filled by the CLI issue).
+//! The `phasekit` command.
+
+use clap::Parser;
 
 fn main() {
-    eprintln!("phasekit: the command-line interface is not built yet; see the README");
-    std::process::exit(2);
+    let cli = phasekit_cli::cli::Cli::parse();
+    if let Err(e) = phasekit_cli::run(cli) {
+        eprintln!("phasekit: error: {e}");
+        std::process::exit(1);
+    }
 }

@@ -5,14 +5,21 @@
 //! beside the repository. Without them the test says so and passes; CI has them.
 
 use phasekit_cli::data::{load_action, FeatureSpec, Velocity};
-use phasekit_cli::experiment::{constant_mean_mse, evaluate_action, parse_method, prepare, Protocol};
+use phasekit_cli::experiment::{
+    constant_mean_mse, evaluate_action, parse_method, prepare, Protocol,
+};
 use phasekit_tsc::PresetOptions;
 use std::path::PathBuf;
 
 fn nuisi() -> Option<PathBuf> {
     let dir = std::env::var_os("PHASEKIT_NUISI")
         .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/data/nuisi")));
+        .unwrap_or_else(|| {
+            PathBuf::from(concat!(
+                env!("CARGO_MANIFEST_DIR"),
+                "/../../../shared/data/nuisi"
+            ))
+        });
     dir.is_dir().then_some(dir)
 }
 
@@ -56,10 +63,21 @@ fn hmm_preset_reproduces_protocol_reference_numbers() {
         let action = load_action(&dir.join(name)).unwrap();
         let prep = prepare(&action, &spec()).unwrap();
         let c = constant_mean_mse(&prep, 100.0);
-        assert!(same_3_digits(c, constant), "{name}: constant baseline {c} vs {constant}");
+        assert!(
+            same_3_digits(c, constant),
+            "{name}: constant baseline {c} vs {constant}"
+        );
         let rows = evaluate_action(&action, &spec(), &methods, &protocol, &|| {}).unwrap();
         assert_eq!(rows[0].seeds, 1);
-        assert!(same_3_digits(rows[0].mse_mean, hmm4), "{name}: HMM-4 {} vs {hmm4}", rows[0].mse_mean);
-        assert!(same_3_digits(rows[1].mse_mean, hmm7), "{name}: HMM-7 {} vs {hmm7}", rows[1].mse_mean);
+        assert!(
+            same_3_digits(rows[0].mse_mean, hmm4),
+            "{name}: HMM-4 {} vs {hmm4}",
+            rows[0].mse_mean
+        );
+        assert!(
+            same_3_digits(rows[1].mse_mean, hmm7),
+            "{name}: HMM-7 {} vs {hmm7}",
+            rows[1].mse_mean
+        );
     }
 }

@@ -14,7 +14,7 @@
 //! noise that would pass for a tiny positive variance.
 
 use crate::error::{EmissionError, Result};
-use crate::linalg::{self, packed_len, packed_lower_sq_norm};
+use crate::linalg::{self, packed_len, packed_lower_sq_norm, LANES};
 use crate::regularization::{CovarianceRegularization, MStepEvent, MStepReport, Regularization};
 use crate::{
     check_dim, check_dims, check_len, check_state, Emission, Frames, SufficientStatistics,
@@ -407,6 +407,160 @@ impl Gaussian {
         self.log_norm[i] - 0.5 * maha
     }
 
+    /// Full/tied log-densities of the frames of `data` (row-major `T × D`),
+    /// written into `out` (`T × S`); returns how many leading frames were done
+    /// (all of them, or all but a last single frame, which the caller
+    /// evaluates by [`Gaussian::log_density_one`]).
+    ///
+    /// Frames go by blocks of [`LANES`] (the last block padded): each block is
+    /// transposed once (`D × LANES`), centred on each state's mean and whitened
+    /// by [`linalg::sq_norms`], whose lanes do exactly the arithmetic of
+    /// [`Gaussian::log_density_one`], so that the result does not depend on how
+    /// the frames are split into calls.
+    #[inline(always)]
+    fn full_blocks(&self, data: &[f64], out: &mut [f64]) -> usize {
+        let (s, d) = (self.n_states, self.dim);
+        let t_len = data.len() / d;
+        let done = if t_len % LANES == 1 { t_len - 1 } else { t_len };
+        if done == 0 {
+            return 0;
+        }
+        let pl = packed_len(d);
+        let mut xt = vec![0.0; d * LANES];
+        let mut xc = vec![0.0; d * LANES];
+        let mut maha = [0.0; LANES];
+        for t0 in (0..done).step_by(LANES) {
+            let nt = LANES.min(done - t0);
+            let block = &data[t0 * d..(t0 + nt) * d];
+            for (l, x) in block.chunks_exact(d).enumerate() {
+                for (k, v) in x.iter().enumerate() {
+                    xt[k * LANES + l] = *v;
+                }
+            }
+            // Padding lanes repeat the last frame (finite; their results are dropped).
+            for row in xt.chunks_exact_mut(LANES) {
+                let last = row[nt - 1];
+                row[nt..].fill(last);
+            }
+            for i in 0..s {
+                let mu = &self.means[i * d..(i + 1) * d];
+                for (k, m) in mu.iter().enumerate() {
+                    let row = k * LANES..(k + 1) * LANES;
+                    linalg::sub_scalar(&mut xc[row.clone()], &xt[row], *m);
+                }
+                let w = match self.kind {
+                    CovarianceType::Full => &self.whiten[i * pl..(i + 1) * pl],
+                    _ => &self.whiten[..pl],
+                };
+                linalg::packed_lower_sq_norms(w, d, &xc, &mut maha);
+                let ln = self.log_norm[i];
+                for (l, m) in maha[..nt].iter().enumerate() {
+                    out[(t0 + l) * s + i] = ln - 0.5 * m;
+                }
+            }
+        }
+        done
+    }
+
+    /// The full/tied part of [`Emission::accumulate`]: for every state `i`,
+    /// `n_i += Σ_t w_ti`, `s_i += Σ_t w_ti (x_t − c_i)` and the lower triangle of
+    /// `Q_i += Σ_t w_ti (x_t − c_i)(x_t − c_i)ᵀ`.
+    ///
+    /// Frames go by chunks of [`ACC_CHUNK`], transposed once (`D × chunk`);
+    /// per state the centred frames and their weighted copy are formed and
+    /// `Q_i` is computed by 4 × 2 tiles of dot products over the frames
+    /// ([`linalg::dot_tile`], a fixed number of interleaved partial sums, so
+    /// that the result does not depend on the SIMD width). Zero-weight frames
+    /// add exact zeros; they are left out of the range (`lo`/`hi`) only.
+    #[inline(always)]
+    fn accumulate_full(&self, frames: Frames<'_>, weights: &[f64], stats: &mut GaussianStats) {
+        let (s, d) = (self.n_states, self.dim);
+        let dp = d.next_multiple_of(4);
+        let t_len = frames.len();
+        let data = frames.as_slice();
+        let cap = ACC_CHUNK.min(t_len.next_multiple_of(AL));
+        let mut xt = vec![0.0; d * cap];
+        // Rows d..dp stay zero: the padding of the 4 × 2 tiles.
+        let mut dt = vec![0.0; dp * cap];
+        let mut at = vec![0.0; dp * cap];
+        let mut w = vec![0.0; cap];
+        let mut chunk_lo = vec![0.0; d];
+        let mut chunk_hi = vec![0.0; d];
+        for c0 in (0..t_len).step_by(cap) {
+            let m = cap.min(t_len - c0);
+            let mp = m.next_multiple_of(AL);
+            for (j, x) in data[c0 * d..(c0 + m) * d].chunks_exact(d).enumerate() {
+                for (k, v) in x.iter().enumerate() {
+                    xt[k * mp + j] = *v;
+                }
+            }
+            for k in 0..d {
+                let row = &xt[k * mp..k * mp + m];
+                chunk_lo[k] = row.iter().fold(f64::INFINITY, |a, b| a.min(*b));
+                chunk_hi[k] = row.iter().fold(f64::NEG_INFINITY, |a, b| a.max(*b));
+            }
+            for i in 0..s {
+                let mut zeros = 0;
+                for (j, wj) in w[..m].iter_mut().enumerate() {
+                    *wj = weights[(c0 + j) * s + i];
+                    zeros += (*wj == 0.0) as usize;
+                }
+                if zeros == m {
+                    continue;
+                }
+                w[m..mp].fill(0.0);
+                stats.weight[i] += linalg::lane_sum::<AL>(&w[..mp]);
+                let lo = &mut stats.lo[i * d..(i + 1) * d];
+                let hi = &mut stats.hi[i * d..(i + 1) * d];
+                if zeros == 0 {
+                    for k in 0..d {
+                        lo[k] = lo[k].min(chunk_lo[k]);
+                        hi[k] = hi[k].max(chunk_hi[k]);
+                    }
+                } else {
+                    for k in 0..d {
+                        let row = &xt[k * mp..k * mp + m];
+                        for (v, wj) in row.iter().zip(&w[..m]) {
+                            if *wj != 0.0 {
+                                lo[k] = lo[k].min(*v);
+                                hi[k] = hi[k].max(*v);
+                            }
+                        }
+                    }
+                }
+                let c = &stats.shift[i * d..(i + 1) * d];
+                let sum = &mut stats.sum[i * d..(i + 1) * d];
+                for k in 0..d {
+                    let ck = c[k];
+                    let src = &xt[k * mp..(k + 1) * mp];
+                    let drow = &mut dt[k * mp..(k + 1) * mp];
+                    let arow = &mut at[k * mp..(k + 1) * mp];
+                    // Padding frames (weight 0) enter as exact zeros.
+                    sum[k] += linalg::centre_weight(src, ck, &w[..mp], drow, arow);
+                    drow[m..].fill(0.0);
+                }
+                let q = &mut stats.sum_sq[i * d * d..(i + 1) * d * d];
+                for r0 in (0..d).step_by(4) {
+                    for c0 in (0..=r0 + 3).step_by(2).take_while(|c| *c < d) {
+                        let tile = linalg::dot_tile(&at, &dt, mp, r0, c0);
+                        for (u, row) in tile.iter().enumerate() {
+                            let r = r0 + u;
+                            if r >= d {
+                                break;
+                            }
+                            for (v, val) in row.iter().enumerate() {
+                                let c = c0 + v;
+                                if c <= r {
+                                    q[r * d + c] += val;
+                                }
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+
     fn kept(&self, i: usize, stats: &GaussianStats, reg: &Regularization) -> bool {
         stats.weight[i] < reg.min_weight().max(f64::MIN_POSITIVE)
     }
@@ -553,6 +707,13 @@ impl Gaussian {
     }
 }
 
+/// Frames per chunk of the full-covariance accumulation (keeps its scratch in L2).
+const ACC_CHUNK: usize = 256;
+
+/// Interleaved partial sums of the accumulation (a property of the
+/// algorithm, not of the SIMD width, so results are the same on every CPU).
+const AL: usize = linalg::DOT_LANES;
+
 /// Calls `f(x − μ)`, using a stack buffer for `D ≤ 64`.
 #[inline]
 fn with_diff<T>(x: &[f64], mu: &[f64], f: impl FnOnce(&[f64]) -> T) -> T {
@@ -567,6 +728,25 @@ fn with_diff<T>(x: &[f64], mu: &[f64], f: impl FnOnce(&[f64]) -> T) -> T {
         let v: Vec<f64> = x.iter().zip(mu).map(|(a, b)| a - b).collect();
         f(&v)
     }
+}
+
+/// [`Gaussian::full_blocks`] compiled for AVX2 and FMA.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn full_blocks_avx2_fma(g: &Gaussian, data: &[f64], out: &mut [f64]) -> usize {
+    g.full_blocks(data, out)
+}
+
+/// [`Gaussian::accumulate_full`] compiled for AVX2 and FMA.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn accumulate_full_avx2_fma(
+    g: &Gaussian,
+    frames: Frames<'_>,
+    weights: &[f64],
+    stats: &mut GaussianStats,
+) {
+    g.accumulate_full(frames, weights, stats)
 }
 
 /// Sufficient statistics of [`Gaussian`] states, about per-state reference points.
@@ -637,11 +817,17 @@ impl SufficientStatistics for GaussianStats {
         let mut delta = vec![0.0; d];
         for i in 0..s {
             let nb = other.weight[i];
-            let (ca, cb) = (&self.shift[i * d..(i + 1) * d], &other.shift[i * d..(i + 1) * d]);
+            let (ca, cb) = (
+                &self.shift[i * d..(i + 1) * d],
+                &other.shift[i * d..(i + 1) * d],
+            );
             if nb == 0.0 && other.sum[i * d..(i + 1) * d].iter().all(|v| *v == 0.0) {
                 continue;
             }
-            if self.weight[i] == 0.0 && self.sum[i * d..(i + 1) * d].iter().all(|v| *v == 0.0) && ca != cb {
+            if self.weight[i] == 0.0
+                && self.sum[i * d..(i + 1) * d].iter().all(|v| *v == 0.0)
+                && ca != cb
+            {
                 // Nothing accumulated here yet: adopt the other's reference point.
                 self.shift[i * d..(i + 1) * d].copy_from_slice(cb);
             }
@@ -657,7 +843,10 @@ impl SufficientStatistics for GaussianStats {
             if full {
                 for r in 0..d {
                     for c in 0..=r {
-                        qa[r * d + c] += qb[r * d + c] + delta[r] * sb[c] + sb[r] * delta[c] + nb * delta[r] * delta[c];
+                        qa[r * d + c] += qb[r * d + c]
+                            + delta[r] * sb[c]
+                            + sb[r] * delta[c]
+                            + nb * delta[r] * delta[c];
                     }
                 }
             } else {
@@ -699,7 +888,27 @@ impl Emission for Gaussian {
         check_dim(self.dim, frames.dim())?;
         let s = self.n_states;
         check_len("log-density output buffer", frames.len() * s, out.len())?;
-        for (x, row) in frames.iter().zip(out.chunks_exact_mut(s)) {
+        let blocked = match self.kind {
+            // Blocks of LANES frames at once (bit-identical to the frame-by-frame
+            // form below, which finishes a last single frame).
+            CovarianceType::Full | CovarianceType::Tied => {
+                #[cfg(target_arch = "x86_64")]
+                {
+                    if linalg::has_avx2_fma() {
+                        // SAFETY: the CPU supports AVX2 and FMA (checked above).
+                        unsafe { full_blocks_avx2_fma(self, frames.as_slice(), out) }
+                    } else {
+                        self.full_blocks(frames.as_slice(), out)
+                    }
+                }
+                #[cfg(not(target_arch = "x86_64"))]
+                {
+                    self.full_blocks(frames.as_slice(), out)
+                }
+            }
+            CovarianceType::Diagonal | CovarianceType::Spherical => 0,
+        };
+        for (x, row) in frames.iter().zip(out.chunks_exact_mut(s)).skip(blocked) {
             for (i, o) in row.iter_mut().enumerate() {
                 *o = self.log_density_one(i, x);
             }
@@ -741,41 +950,32 @@ impl Emission for Gaussian {
             ));
         }
         let full = matches!(self.kind, CovarianceType::Full | CovarianceType::Tied);
-        let mut diff = vec![0.0; d];
         for i in 0..s {
             if stats.anchor_lazily && stats.weight[i] == 0.0 {
                 if let Some(t) = (0..frames.len()).find(|&t| weights[t * s + i] != 0.0) {
                     stats.shift[i * d..(i + 1) * d].copy_from_slice(frames.frame(t));
                 }
             }
+        }
+        if full {
+            #[cfg(target_arch = "x86_64")]
+            {
+                if linalg::has_avx2_fma() {
+                    // SAFETY: the CPU supports AVX2 and FMA (checked above).
+                    unsafe { accumulate_full_avx2_fma(self, frames, weights, stats) };
+                    return Ok(());
+                }
+            }
+            self.accumulate_full(frames, weights, stats);
+            return Ok(());
+        }
+        for i in 0..s {
             let c = &stats.shift[i * d..(i + 1) * d];
             let sum = &mut stats.sum[i * d..(i + 1) * d];
             let lo = &mut stats.lo[i * d..(i + 1) * d];
             let hi = &mut stats.hi[i * d..(i + 1) * d];
             let mut n = 0.0;
-            if full {
-                let q = &mut stats.sum_sq[i * d * d..(i + 1) * d * d];
-                for (t, x) in frames.iter().enumerate() {
-                    let w = weights[t * s + i];
-                    if w == 0.0 {
-                        continue;
-                    }
-                    n += w;
-                    for k in 0..d {
-                        lo[k] = lo[k].min(x[k]);
-                        hi[k] = hi[k].max(x[k]);
-                        diff[k] = x[k] - c[k];
-                        sum[k] += w * diff[k];
-                    }
-                    for r in 0..d {
-                        let wr = w * diff[r];
-                        let row = &mut q[r * d..r * d + r + 1];
-                        for (qq, dc) in row.iter_mut().zip(&diff[..=r]) {
-                            *qq += wr * dc;
-                        }
-                    }
-                }
-            } else {
+            {
                 let q = &mut stats.sum_sq[i * d..(i + 1) * d];
                 for (t, x) in frames.iter().enumerate() {
                     let w = weights[t * s + i];

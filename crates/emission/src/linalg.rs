@@ -39,21 +39,359 @@ pub fn unpack_lower(packed: &[f64], d: usize) -> DMatrix<f64> {
     m
 }
 
+/// Frames evaluated together by the batched kernels: the SIMD lanes of
+/// [`packed_lower_sq_norms`] are consecutive frames.
+pub const LANES: usize = 16;
+
 /// `Σ_r (W_r · v)²` for a packed lower-triangular `W`: the squared norm of `W v`.
 ///
 /// With `W = L⁻¹` for the Cholesky factor `L` of `Σ`, this is the Mahalanobis
-/// distance `vᵀ Σ⁻¹ v`.
+/// distance `vᵀ Σ⁻¹ v`. Computed with fused multiply-adds in a fixed order,
+/// exactly as one lane of [`packed_lower_sq_norms`], so that the one-frame and
+/// the batched evaluations agree to the last bit.
 #[inline]
 pub fn packed_lower_sq_norm(packed: &[f64], v: &[f64]) -> f64 {
-    let mut acc = 0.0;
-    let mut start = 0;
-    for r in 0..v.len() {
-        let row = &packed[start..start + r + 1];
-        let z: f64 = row.iter().zip(&v[..=r]).map(|(a, b)| a * b).sum();
-        acc += z * z;
-        start += r + 1;
+    let mut out = [0.0];
+    #[cfg(target_arch = "x86_64")]
+    {
+        if has_avx2_fma() {
+            // SAFETY: the CPU supports AVX2 and FMA (checked above).
+            unsafe { sq_norms_avx2_fma::<1>(packed, v.len(), v, &mut out) };
+            return out[0];
+        }
     }
-    acc
+    sq_norms::<1>(packed, v.len(), v, &mut out);
+    out[0]
+}
+
+/// `out[l] = ‖W v_l‖²` for `L` vectors at once: `xt` holds them transposed
+/// (`xt[k·L + l]` is entry `k` of vector `l`, `D × L`). Every lane does the
+/// arithmetic of [`packed_lower_sq_norm`], so results do not depend on `L`,
+/// on the SIMD width or on how frames are grouped.
+#[inline]
+pub fn packed_lower_sq_norms(packed: &[f64], d: usize, xt: &[f64], out: &mut [f64; LANES]) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if has_avx2_fma() {
+            // SAFETY: the CPU supports AVX2 and FMA (checked above).
+            unsafe { sq_norms16_avx2_fma(packed, d, xt, out) };
+            return;
+        }
+    }
+    sq_norms::<LANES>(packed, d, xt, out)
+}
+
+/// True when the CPU has AVX2 and FMA (cached by the standard library).
+#[cfg(target_arch = "x86_64")]
+#[inline]
+pub fn has_avx2_fma() -> bool {
+    std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma")
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn sq_norms_avx2_fma<const L: usize>(
+    packed: &[f64],
+    d: usize,
+    xt: &[f64],
+    out: &mut [f64; L],
+) {
+    sq_norms::<L>(packed, d, xt, out)
+}
+
+/// [`sq_norms`] for [`LANES`] = 16 frames with AVX2 registers (four per row):
+/// the same fused multiply-adds in the same order, lane by lane.
+///
+/// # Safety
+/// The CPU must support AVX2 and FMA.
+#[cfg(target_arch = "x86_64")]
+#[inline]
+#[target_feature(enable = "avx2,fma")]
+pub unsafe fn sq_norms16_avx2_fma(packed: &[f64], d: usize, xt: &[f64], out: &mut [f64; LANES]) {
+    use std::arch::x86_64::*;
+    assert!(LANES == 16 && packed.len() >= packed_len(d) && xt.len() >= d * LANES);
+    let w = packed.as_ptr();
+    let x = xt.as_ptr();
+    let zero = _mm256_setzero_pd();
+    let mut acc = [zero; 4];
+    let mut start = 0;
+    let mut r = 0;
+    while r + 1 < d {
+        let row0 = w.add(start);
+        let row1 = w.add(start + r + 1);
+        let mut z0 = [zero; 4];
+        let mut z1 = [zero; 4];
+        for k in 0..=r {
+            let a = _mm256_broadcast_sd(&*row0.add(k));
+            let b = _mm256_broadcast_sd(&*row1.add(k));
+            let xk = x.add(k * LANES);
+            for q in 0..4 {
+                let v = _mm256_loadu_pd(xk.add(4 * q));
+                z0[q] = _mm256_fmadd_pd(a, v, z0[q]);
+                z1[q] = _mm256_fmadd_pd(b, v, z1[q]);
+            }
+        }
+        let b = _mm256_broadcast_sd(&*row1.add(r + 1));
+        let xk = x.add((r + 1) * LANES);
+        for q in 0..4 {
+            let v = _mm256_loadu_pd(xk.add(4 * q));
+            z1[q] = _mm256_fmadd_pd(b, v, z1[q]);
+            acc[q] = _mm256_fmadd_pd(z0[q], z0[q], acc[q]);
+            acc[q] = _mm256_fmadd_pd(z1[q], z1[q], acc[q]);
+        }
+        start += 2 * r + 3;
+        r += 2;
+    }
+    if r < d {
+        let row = w.add(start);
+        let mut z = [zero; 4];
+        for k in 0..=r {
+            let a = _mm256_broadcast_sd(&*row.add(k));
+            let xk = x.add(k * LANES);
+            for q in 0..4 {
+                z[q] = _mm256_fmadd_pd(a, _mm256_loadu_pd(xk.add(4 * q)), z[q]);
+            }
+        }
+        for q in 0..4 {
+            acc[q] = _mm256_fmadd_pd(z[q], z[q], acc[q]);
+        }
+    }
+    for q in 0..4 {
+        _mm256_storeu_pd(out.as_mut_ptr().add(4 * q), acc[q]);
+    }
+}
+
+/// Body of the squared-norm kernels: rows of `W` two at a time (sharing the
+/// loads of `v`), `z_r = Σ_{k ≤ r} w_rk v_k` by fused multiply-adds in
+/// increasing `k`, then `acc += z_r²` in increasing `r`. `f64::mul_add` is
+/// correctly rounded on every target (hardware or libm), so all code paths
+/// give identical results.
+#[inline(always)]
+pub fn sq_norms<const L: usize>(packed: &[f64], d: usize, xt: &[f64], out: &mut [f64; L]) {
+    assert!(packed.len() >= packed_len(d) && xt.len() >= d * L);
+    let lane = |k: usize| -> &[f64; L] { xt[k * L..(k + 1) * L].try_into().unwrap() };
+    let mut acc = [0.0; L];
+    let mut start = 0;
+    let mut r = 0;
+    while r + 1 < d {
+        let row0 = &packed[start..start + r + 1];
+        let row1 = &packed[start + r + 1..start + 2 * r + 3];
+        let mut z0 = [0.0; L];
+        let mut z1 = [0.0; L];
+        for k in 0..=r {
+            let x = lane(k);
+            let (a, b) = (row0[k], row1[k]);
+            for l in 0..L {
+                z0[l] = a.mul_add(x[l], z0[l]);
+                z1[l] = b.mul_add(x[l], z1[l]);
+            }
+        }
+        let x = lane(r + 1);
+        let b = row1[r + 1];
+        for l in 0..L {
+            z1[l] = b.mul_add(x[l], z1[l]);
+            acc[l] = z0[l].mul_add(z0[l], acc[l]);
+            acc[l] = z1[l].mul_add(z1[l], acc[l]);
+        }
+        start += 2 * r + 3;
+        r += 2;
+    }
+    if r < d {
+        let row = &packed[start..start + r + 1];
+        let mut z = [0.0; L];
+        for (k, a) in row.iter().enumerate() {
+            let x = lane(k);
+            for l in 0..L {
+                z[l] = a.mul_add(x[l], z[l]);
+            }
+        }
+        for l in 0..L {
+            acc[l] = z[l].mul_add(z[l], acc[l]);
+        }
+    }
+    *out = acc;
+}
+
+/// `dst[j] = src[j] − m` (elementwise, so every code path agrees exactly).
+#[inline(always)]
+pub fn sub_scalar(dst: &mut [f64], src: &[f64], m: f64) {
+    assert_eq!(dst.len(), src.len());
+    #[cfg(target_arch = "x86_64")]
+    {
+        if has_avx2_fma() {
+            // SAFETY: the CPU supports AVX2 (checked above); lengths are equal.
+            unsafe { sub_scalar_avx2(dst, src, m) };
+            return;
+        }
+    }
+    for (o, v) in dst.iter_mut().zip(src) {
+        *o = v - m;
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[inline]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn sub_scalar_avx2(dst: &mut [f64], src: &[f64], m: f64) {
+    use std::arch::x86_64::*;
+    let n = dst.len();
+    let mv = _mm256_set1_pd(m);
+    let (o, x) = (dst.as_mut_ptr(), src.as_ptr());
+    let mut j = 0;
+    while j + 4 <= n {
+        _mm256_storeu_pd(o.add(j), _mm256_sub_pd(_mm256_loadu_pd(x.add(j)), mv));
+        j += 4;
+    }
+    while j < n {
+        *o.add(j) = *x.add(j) - m;
+        j += 1;
+    }
+}
+
+/// Centred and weighted values for the accumulation: `d[j] = x[j] − c`,
+/// `a[j] = w[j]·d[j]`; returns `Σ_j a[j]` by four interleaved partial sums
+/// (lane `j mod 4`) combined by [`reduce_lanes`]. All lengths are equal and a
+/// multiple of 4.
+#[inline(always)]
+pub fn centre_weight(x: &[f64], c: f64, w: &[f64], d: &mut [f64], a: &mut [f64]) -> f64 {
+    let n = x.len();
+    assert!(n % 4 == 0 && w.len() == n && d.len() == n && a.len() == n);
+    #[cfg(target_arch = "x86_64")]
+    {
+        if has_avx2_fma() {
+            // SAFETY: the CPU supports AVX2 (checked above); lengths checked.
+            return unsafe { centre_weight_avx2(x, c, w, d, a) };
+        }
+    }
+    let mut part = [0.0; 4];
+    for j in 0..n {
+        d[j] = x[j] - c;
+        a[j] = w[j] * d[j];
+        part[j % 4] += a[j];
+    }
+    reduce_lanes(part)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[inline]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn centre_weight_avx2(x: &[f64], c: f64, w: &[f64], d: &mut [f64], a: &mut [f64]) -> f64 {
+    use std::arch::x86_64::*;
+    let n = x.len();
+    let cv = _mm256_set1_pd(c);
+    let mut acc = _mm256_setzero_pd();
+    let mut j = 0;
+    while j < n {
+        let dv = _mm256_sub_pd(_mm256_loadu_pd(x.as_ptr().add(j)), cv);
+        let av = _mm256_mul_pd(_mm256_loadu_pd(w.as_ptr().add(j)), dv);
+        _mm256_storeu_pd(d.as_mut_ptr().add(j), dv);
+        _mm256_storeu_pd(a.as_mut_ptr().add(j), av);
+        acc = _mm256_add_pd(acc, av);
+        j += 4;
+    }
+    let mut part = [0.0; 4];
+    _mm256_storeu_pd(part.as_mut_ptr(), acc);
+    reduce_lanes(part)
+}
+
+/// `Σ_j v_j` by `L` interleaved partial sums (lane `l` takes `j ≡ l mod L`),
+/// combined pairwise; `v.len()` must be a multiple of `L`.
+#[inline(always)]
+pub fn lane_sum<const L: usize>(v: &[f64]) -> f64 {
+    assert!(v.len() % L == 0);
+    let mut acc = [0.0; L];
+    for chunk in v.chunks_exact(L) {
+        for l in 0..L {
+            acc[l] += chunk[l];
+        }
+    }
+    reduce_lanes(acc)
+}
+
+/// Pairwise sum of `L` partial sums, in a fixed order.
+#[inline(always)]
+pub fn reduce_lanes<const L: usize>(mut acc: [f64; L]) -> f64 {
+    let mut w = L;
+    while w > 1 {
+        let h = w / 2;
+        for l in 0..h {
+            acc[l] += acc[l + h];
+        }
+        if w % 2 == 1 {
+            acc[0] += acc[w - 1];
+        }
+        w = h;
+    }
+    acc[0]
+}
+
+/// A 4 × 2 tile of dot products over `m` frames,
+/// `out[u][v] = Σ_j a[(r0+u)·m + j] · b[(c0+v)·m + j]`, for rows of `a` and
+/// `b` stored with stride `m` (a multiple of [`DOT_LANES`]): fused
+/// multiply-adds into [`DOT_LANES`] interleaved partial sums per entry,
+/// combined by [`lane_sum`]'s rule. The AVX2 form (one register per entry)
+/// and the portable form do the same arithmetic, lane by lane.
+#[inline(always)]
+pub fn dot_tile(a: &[f64], b: &[f64], m: usize, r0: usize, c0: usize) -> [[f64; 2]; 4] {
+    assert!(m % DOT_LANES == 0 && a.len() >= (r0 + 4) * m && b.len() >= (c0 + 2) * m);
+    let rows: [&[f64]; 6] = [
+        &a[r0 * m..(r0 + 1) * m],
+        &a[(r0 + 1) * m..(r0 + 2) * m],
+        &a[(r0 + 2) * m..(r0 + 3) * m],
+        &a[(r0 + 3) * m..(r0 + 4) * m],
+        &b[c0 * m..(c0 + 1) * m],
+        &b[(c0 + 1) * m..(c0 + 2) * m],
+    ];
+    #[cfg(target_arch = "x86_64")]
+    {
+        if has_avx2_fma() {
+            // SAFETY: the CPU supports AVX2 and FMA (checked above); every row
+            // holds `m` values, a multiple of 4.
+            let acc = unsafe { dot_tile_avx2_fma(rows, m) };
+            return std::array::from_fn(|u| std::array::from_fn(|v| reduce_lanes(acc[u][v])));
+        }
+    }
+    let mut acc = [[[0.0; DOT_LANES]; 2]; 4];
+    for j in (0..m).step_by(DOT_LANES) {
+        for u in 0..4 {
+            for v in 0..2 {
+                for l in 0..DOT_LANES {
+                    acc[u][v][l] = rows[u][j + l].mul_add(rows[4 + v][j + l], acc[u][v][l]);
+                }
+            }
+        }
+    }
+    std::array::from_fn(|u| std::array::from_fn(|v| reduce_lanes(acc[u][v])))
+}
+
+/// Interleaved partial sums of [`dot_tile`] (one AVX2 register).
+pub const DOT_LANES: usize = 4;
+
+#[cfg(target_arch = "x86_64")]
+#[inline]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn dot_tile_avx2_fma(rows: [&[f64]; 6], m: usize) -> [[[f64; 4]; 2]; 4] {
+    use std::arch::x86_64::*;
+    let p: [*const f64; 6] = std::array::from_fn(|k| rows[k].as_ptr());
+    let mut c = [_mm256_setzero_pd(); 8];
+    let mut j = 0;
+    while j < m {
+        let b0 = _mm256_loadu_pd(p[4].add(j));
+        let b1 = _mm256_loadu_pd(p[5].add(j));
+        for u in 0..4 {
+            let x = _mm256_loadu_pd(p[u].add(j));
+            c[2 * u] = _mm256_fmadd_pd(x, b0, c[2 * u]);
+            c[2 * u + 1] = _mm256_fmadd_pd(x, b1, c[2 * u + 1]);
+        }
+        j += 4;
+    }
+    let mut out = [[[0.0; 4]; 2]; 4];
+    for u in 0..4 {
+        for v in 0..2 {
+            _mm256_storeu_pd(out[u][v].as_mut_ptr(), c[2 * u + v]);
+        }
+    }
+    out
 }
 
 /// `out = L z` for a packed lower-triangular `L`.

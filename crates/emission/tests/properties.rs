@@ -1015,14 +1015,18 @@ fn stats_about_different_reference_points_merge_exactly() {
         let b = random_gaussian(kind, 2, 3, &mut rng).model;
         let data = random_frames(40, 3, 1.0, &mut rng);
         let w: Vec<f64> = (0..80).map(|k| 0.1 + (k % 7) as f64 / 7.0).collect();
-        let (first, second) = (Frames::new(&data[..60], 3).unwrap(), Frames::new(&data[60..], 3).unwrap());
+        let (first, second) = (
+            Frames::new(&data[..60], 3).unwrap(),
+            Frames::new(&data[60..], 3).unwrap(),
+        );
         let mut sa = a.new_stats();
         a.accumulate(first, &w[..40], &mut sa).unwrap();
         let mut sb = b.new_stats();
         b.accumulate(second, &w[40..], &mut sb).unwrap();
         sa.merge(&sb).unwrap();
         let mut all = a.new_stats();
-        a.accumulate(Frames::new(&data, 3).unwrap(), &w, &mut all).unwrap();
+        a.accumulate(Frames::new(&data, 3).unwrap(), &w, &mut all)
+            .unwrap();
         let reg = Regularization::none();
         let (mut m1, mut m2) = (a.clone(), a.clone());
         m1.m_step(&sa, &reg).unwrap();
@@ -1031,7 +1035,12 @@ fn stats_about_different_reference_points_merge_exactly() {
             for (x, y) in m1.mean(i).iter().zip(m2.mean(i)) {
                 assert!((x - y).abs() < 1e-10, "{kind:?}: mean {x} vs {y}");
             }
-            assert_matrix_close(&m1.covariance(i), &m2.covariance(i), 1e-10, "re-centred merge");
+            assert_matrix_close(
+                &m1.covariance(i),
+                &m2.covariance(i),
+                1e-10,
+                "re-centred merge",
+            );
         }
     }
 }

@@ -93,11 +93,19 @@ impl<E: Emission> MixtureModel<E> {
     }
 
     /// The M-step: `π_k = N_k / N` (plus the pseudo-count of `reg`) and the components' M-step.
-    pub fn maximise(&self, stats: &MixtureStatistics<E::Stats>, reg: &Regularization) -> Result<(Self, MStepReport)> {
+    pub fn maximise(
+        &self,
+        stats: &MixtureStatistics<E::Stats>,
+        reg: &Regularization,
+    ) -> Result<(Self, MStepReport)> {
         let a = reg.pseudo_count();
         let k = self.n_components();
         let n: f64 = stats.counts.iter().sum();
-        let weights: Vec<f64> = stats.counts.iter().map(|c| (c + a) / (n + a * k as f64)).collect();
+        let weights: Vec<f64> = stats
+            .counts
+            .iter()
+            .map(|c| (c + a) / (n + a * k as f64))
+            .collect();
         let mut components = self.components.clone();
         let report = components.m_step(&stats.components, reg)?;
         Ok((MixtureModel::new(weights, components)?, report))
@@ -106,7 +114,11 @@ impl<E: Emission> MixtureModel<E> {
     /// `log prior` of the weights (Dirichlet pseudo-counts) and the components.
     fn log_prior(&self, reg: &Regularization) -> f64 {
         let a = reg.pseudo_count();
-        let w = if a > 0.0 { a * self.log_weights.iter().sum::<f64>() } else { 0.0 };
+        let w = if a > 0.0 {
+            a * self.log_weights.iter().sum::<f64>()
+        } else {
+            0.0
+        };
         w + self.components.log_prior(reg)
     }
 }
@@ -239,11 +251,19 @@ impl Em {
     }
 
     /// Initial mixture from an emission template with `K` states.
-    pub fn initialise<E: Emission, R: Rng + ?Sized>(&self, template: &E, frames: Frames<'_>, init: GmmInit, rng: &mut R) -> Result<MixtureModel<E>> {
+    pub fn initialise<E: Emission, R: Rng + ?Sized>(
+        &self,
+        template: &E,
+        frames: Frames<'_>,
+        init: GmmInit,
+        rng: &mut R,
+    ) -> Result<MixtureModel<E>> {
         let k = template.n_states();
         let n = frames.len();
         if n < k {
-            return Err(GmmError::TooFewFrames(format!("{n} frames cannot initialise {k} components")));
+            return Err(GmmError::TooFewFrames(format!(
+                "{n} frames cannot initialise {k} components"
+            )));
         }
         let mut r = vec![0.0; n * k];
         match init {
@@ -299,12 +319,16 @@ impl Em {
         let mut first_error = None;
         for r in 0..self.restarts {
             let mut rng = ChaCha8Rng::seed_from_u64(self.seed.wrapping_add(r as u64));
-            let run = self.initialise(template, frames, self.init, &mut rng).and_then(|m| self.run(m, frames));
+            let run = self
+                .initialise(template, frames, self.init, &mut rng)
+                .and_then(|m| self.run(m, frames));
             match run {
                 Ok(fitted) => {
                     let obj = *fitted.report.objective.last().unwrap_or(&f64::NEG_INFINITY);
                     finals.push(Some(obj));
-                    if best.as_ref().is_none_or(|b| obj > *b.report.objective.last().unwrap_or(&f64::NEG_INFINITY)) {
+                    if best.as_ref().is_none_or(|b| {
+                        obj > *b.report.objective.last().unwrap_or(&f64::NEG_INFINITY)
+                    }) {
                         let mut fitted = fitted;
                         fitted.report.best_restart = r;
                         best = Some(fitted);
@@ -327,7 +351,11 @@ impl Em {
     }
 
     /// Runs EM from the given mixture.
-    pub fn fit_from<E: Emission>(&self, initial: MixtureModel<E>, frames: Frames<'_>) -> Result<FittedMixture<E>> {
+    pub fn fit_from<E: Emission>(
+        &self,
+        initial: MixtureModel<E>,
+        frames: Frames<'_>,
+    ) -> Result<FittedMixture<E>> {
         let clock = Instant::now();
         initial.check_frames(frames)?;
         let mut fitted = self.run(initial, frames)?;
@@ -336,7 +364,11 @@ impl Em {
         Ok(fitted)
     }
 
-    fn run<E: Emission>(&self, mut model: MixtureModel<E>, frames: Frames<'_>) -> Result<FittedMixture<E>> {
+    fn run<E: Emission>(
+        &self,
+        mut model: MixtureModel<E>,
+        frames: Frames<'_>,
+    ) -> Result<FittedMixture<E>> {
         let n = frames.len() as f64;
         self.in_pool(|| {
             let mut log_likelihood: Vec<f64> = Vec::new();

@@ -18,4 +18,7 @@ pub mod selection;
 pub use em::{Em, EmBuilder, FittedMixture, GmmFitReport, GmmInit, MixtureStatistics};
 pub use error::{GmmError, Result};
 pub use model::{Gmm, MixtureModel, MODEL_FORMAT_VERSION};
-pub use selection::{anderson_darling_normal, gmeans, select_hmm_states_bic, select_mixture_bic, GMeans, GMeansResult, Selection};
+pub use selection::{
+    anderson_darling_normal, gmeans, select_hmm_states_bic, select_mixture_bic, GMeans,
+    GMeansResult, Selection,
+};

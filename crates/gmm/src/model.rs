@@ -73,6 +73,10 @@ fn ln0(p: f64) -> f64 {
 impl<E: Emission> MixtureModel<E> {
     /// Builds a mixture; `weights` has one entry per state of `components`,
     /// finite, non-negative, summing to 1 (within `1e-8`, then renormalised).
+    ///
+    /// Weights that already sum to 1 up to rounding (`|Σ − 1| ≤ 2 K ε`) are kept
+    /// bit for bit: dividing a normalised vector by its rounded sum again can move
+    /// entries by an ulp, so a saved model would not reload exactly.
     pub fn new(weights: Vec<f64>, components: E) -> Result<Self> {
         let k = components.n_states();
         if weights.len() != k {
@@ -94,7 +98,11 @@ impl<E: Emission> MixtureModel<E> {
                 reason: format!("weights sum to {total}, not 1"),
             });
         }
-        let weights: Vec<f64> = weights.iter().map(|w| w / total).collect();
+        let weights: Vec<f64> = if (total - 1.0).abs() <= 2.0 * k as f64 * f64::EPSILON {
+            weights
+        } else {
+            weights.iter().map(|w| w / total).collect()
+        };
         let log_weights = weights.iter().map(|w| ln0(*w)).collect();
         Ok(MixtureModel {
             weights,
@@ -179,7 +187,10 @@ impl<E: Emission> MixtureModel<E> {
             .map(|row| {
                 row.iter()
                     .enumerate()
-                    .fold((0, f64::NEG_INFINITY), |b, (j, v)| if *v > b.1 { (j, *v) } else { b })
+                    .fold(
+                        (0, f64::NEG_INFINITY),
+                        |b, (j, v)| if *v > b.1 { (j, *v) } else { b },
+                    )
                     .0
             })
             .collect())
@@ -193,7 +204,8 @@ impl<E: Emission> MixtureModel<E> {
         for t in 0..n {
             let k = phasekit_emission::categorical::sample_index(&self.weights, rng);
             labels.push(k);
-            self.components.sample_into(k, rng, &mut frames[t * d..(t + 1) * d])?;
+            self.components
+                .sample_into(k, rng, &mut frames[t * d..(t + 1) * d])?;
         }
         Ok((frames, labels))
     }
@@ -210,7 +222,8 @@ impl<E: Emission> MixtureModel<E> {
 
     /// `−2 log p(X) + p log N`.
     pub fn bic(&self, frames: Frames<'_>) -> Result<f64> {
-        Ok(-2.0 * self.log_likelihood(frames)? + self.n_parameters() as f64 * (frames.len() as f64).ln())
+        Ok(-2.0 * self.log_likelihood(frames)?
+            + self.n_parameters() as f64 * (frames.len() as f64).ln())
     }
 
     /// The mixture of the components' marginals on `dims` (same weights).

@@ -7,6 +7,7 @@
 
 use crate::error::{GmrError, Result};
 use nalgebra::DMatrix;
+use phasekit_emission::EmissionError;
 use serde::{Deserialize, Serialize};
 
 /// Validates disjoint, non-empty, in-range input and output dimensions.
@@ -38,9 +39,37 @@ pub struct Conditional {
 
 impl Conditional {
     /// Conditions `N(mean, cov)` (`state` only names it in errors) on the `input` dims, predicting `output`.
-    pub fn new(mean: &[f64], cov: &DMatrix<f64>, input: &[usize], output: &[usize], state: usize) -> Result<Self> {
+    pub fn new(
+        mean: &[f64],
+        cov: &DMatrix<f64>,
+        input: &[usize],
+        output: &[usize],
+        state: usize,
+    ) -> Result<Self> {
         check_io(input, output, mean.len())?;
-        let sub = |rows: &[usize], cols: &[usize]| DMatrix::from_fn(rows.len(), cols.len(), |r, c| cov[(rows[r], cols[c])]);
+        let d = mean.len();
+        if cov.nrows() != d || cov.ncols() != d {
+            return Err(EmissionError::DimensionMismatch {
+                context: "conditional: covariance rows/columns vs mean length",
+                expected: d,
+                found: if cov.nrows() != d {
+                    cov.nrows()
+                } else {
+                    cov.ncols()
+                },
+            }
+            .into());
+        }
+        if let Some(i) = mean.iter().chain(cov.iter()).position(|v| !v.is_finite()) {
+            return Err(EmissionError::InvalidParameter {
+                name: if i < d { "mean" } else { "covariance" },
+                reason: format!("state {state}: a value is not finite"),
+            }
+            .into());
+        }
+        let sub = |rows: &[usize], cols: &[usize]| {
+            DMatrix::from_fn(rows.len(), cols.len(), |r, c| cov[(rows[r], cols[c])])
+        };
         let s_ii = sub(input, input);
         let s_io = sub(input, output);
         let s_oo = sub(output, output);
@@ -54,8 +83,14 @@ impl Conditional {
             n_out,
             mean_in: input.iter().map(|&d| mean[d]).collect(),
             mean_out: output.iter().map(|&d| mean[d]).collect(),
-            regression: (0..n_out).flat_map(|o| (0..n_in).map(move |i| (o, i))).map(|(o, i)| rt[(i, o)]).collect(),
-            covariance: (0..n_out).flat_map(|r| (0..n_out).map(move |c| (r, c))).map(|(r, c)| cond[(r, c)]).collect(),
+            regression: (0..n_out)
+                .flat_map(|o| (0..n_in).map(move |i| (o, i)))
+                .map(|(o, i)| rt[(i, o)])
+                .collect(),
+            covariance: (0..n_out)
+                .flat_map(|r| (0..n_out).map(move |c| (r, c)))
+                .map(|(r, c)| cond[(r, c)])
+                .collect(),
         })
     }
 

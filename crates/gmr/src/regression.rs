@@ -10,7 +10,7 @@
 
 use crate::conditional::{check_io, Conditional};
 use crate::error::Result;
-use phasekit_emission::{Emission, Frames, Gaussian};
+use phasekit_emission::{Emission, EmissionError, Frames, Gaussian};
 use phasekit_gmm::Gmm;
 use phasekit_hmm::{ForwardFilter, Hmm};
 use serde::{Deserialize, Serialize};
@@ -75,14 +75,35 @@ impl Regression {
         self.output.len()
     }
 
-    /// Mixes the conditionals at input `x_in` with weights `h` (length `K`) into `mean`
-    /// (length `O`) and, if given, `cov` (`O × O`). `scratch` must hold `K × O` values.
-    /// States with zero weight are skipped. No allocation.
+    /// Mixes the conditionals at input `x_in` (length `I`) with weights `h` (length `K`)
+    /// into `mean` (length `O`) and, if given, `cov` (`O × O`). `scratch` must hold
+    /// `K × O` values. States with zero weight are skipped. No allocation.
+    ///
+    /// A buffer of the wrong length is an error and nothing is written.
     #[inline]
-    pub fn mix_into(&self, x_in: &[f64], h: &[f64], mean: &mut [f64], cov: Option<&mut [f64]>, scratch: &mut [f64]) {
-        let o = self.n_out();
+    pub fn mix_into(
+        &self,
+        x_in: &[f64],
+        h: &[f64],
+        mean: &mut [f64],
+        cov: Option<&mut [f64]>,
+        scratch: &mut [f64],
+    ) -> Result<()> {
+        let (k, o) = (self.n_states(), self.n_out());
+        check_len("GMR input frame", self.input.len(), x_in.len())?;
+        check_len("GMR weights", k, h.len())?;
+        check_len("GMR mean buffer", o, mean.len())?;
+        check_len("GMR scratch buffer", k * o, scratch.len())?;
+        if let Some(c) = &cov {
+            check_len("GMR covariance buffer", o * o, c.len())?;
+        }
         mean.fill(0.0);
-        for ((c, hk), mk) in self.conditionals.iter().zip(h).zip(scratch.chunks_exact_mut(o)) {
+        for ((c, hk), mk) in self
+            .conditionals
+            .iter()
+            .zip(h)
+            .zip(scratch.chunks_exact_mut(o))
+        {
             if *hk == 0.0 {
                 continue;
             }
@@ -105,24 +126,50 @@ impl Regression {
                 }
             }
         }
+        Ok(())
     }
 
     /// Mixes over a whole sequence with per-frame weights (`T × K`).
-    fn mix_sequence(&self, frames: Frames<'_>, weights: Vec<f64>, with_covariance: bool) -> Prediction {
+    fn mix_sequence(
+        &self,
+        frames: Frames<'_>,
+        weights: Vec<f64>,
+        with_covariance: bool,
+    ) -> Result<Prediction> {
         let (k, o, t) = (self.n_states(), self.n_out(), frames.len());
         let mut mean = vec![0.0; t * o];
         let mut cov = with_covariance.then(|| vec![0.0; t * o * o]);
         let mut scratch = vec![0.0; k * o];
         for (tt, x) in frames.iter().enumerate() {
             let c = cov.as_mut().map(|c| &mut c[tt * o * o..(tt + 1) * o * o]);
-            self.mix_into(x, &weights[tt * k..(tt + 1) * k], &mut mean[tt * o..(tt + 1) * o], c, &mut scratch);
+            self.mix_into(
+                x,
+                &weights[tt * k..(tt + 1) * k],
+                &mut mean[tt * o..(tt + 1) * o],
+                c,
+                &mut scratch,
+            )?;
         }
-        Prediction {
+        Ok(Prediction {
             n_out: o,
             mean,
             covariance: cov,
             weights,
+        })
+    }
+}
+
+/// Errors unless a buffer has length `expected`.
+fn check_len(context: &'static str, expected: usize, found: usize) -> Result<()> {
+    if expected == found {
+        Ok(())
+    } else {
+        Err(EmissionError::DimensionMismatch {
+            context,
+            expected,
+            found,
         }
+        .into())
     }
 }
 
@@ -152,7 +199,8 @@ impl GmmRegression {
     /// Predicts the outputs of every frame of `input_frames` (input dims only, in `input` order).
     pub fn predict(&self, input_frames: Frames<'_>, with_covariance: bool) -> Result<Prediction> {
         let weights = self.input_model.responsibilities(input_frames)?;
-        Ok(self.regression.mix_sequence(input_frames, weights, with_covariance))
+        self.regression
+            .mix_sequence(input_frames, weights, with_covariance)
     }
 
     /// Predicts one frame without allocating: `weights` (length `K`) receives the
@@ -167,9 +215,15 @@ impl GmmRegression {
         scratch: &mut [f64],
     ) -> Result<()> {
         let frame = Frames::new(input_frame, self.regression.input().len())?;
-        self.input_model.components().log_density_into(frame, weights)?;
+        self.input_model
+            .components()
+            .log_density_into(frame, weights)?;
         for (w, pi) in weights.iter_mut().zip(self.input_model.weights()) {
-            *w += if *pi > 0.0 { pi.ln() } else { f64::NEG_INFINITY };
+            *w += if *pi > 0.0 {
+                pi.ln()
+            } else {
+                f64::NEG_INFINITY
+            };
         }
         let lse = phasekit_emission::linalg::log_sum_exp(weights);
         if lse == f64::NEG_INFINITY {
@@ -177,8 +231,8 @@ impl GmmRegression {
         } else {
             weights.iter_mut().for_each(|w| *w = (*w - lse).exp());
         }
-        self.regression.mix_into(input_frame, weights, mean, cov, scratch);
-        Ok(())
+        self.regression
+            .mix_into(input_frame, weights, mean, cov, scratch)
     }
 }
 
@@ -214,7 +268,8 @@ impl HmmRegression {
     /// frame `t` uses `x^i_{1:t}` only.
     pub fn predict(&self, input_frames: Frames<'_>, with_covariance: bool) -> Result<Prediction> {
         let forward = self.input_model.forward(input_frames)?;
-        Ok(self.regression.mix_sequence(input_frames, forward.filtered().to_vec(), with_covariance))
+        self.regression
+            .mix_sequence(input_frames, forward.filtered().to_vec(), with_covariance)
     }
 
     /// A frame-by-frame predictor for a control loop.
@@ -245,7 +300,8 @@ impl OnlineRegression {
     /// Takes input frame `x^i_t`, updates the belief and returns the predicted output mean.
     pub fn step(&mut self, input_frame: &[f64]) -> Result<&[f64]> {
         let h = self.filter.step(input_frame)?;
-        self.regression.mix_into(input_frame, h, &mut self.mean, None, &mut self.scratch);
+        self.regression
+            .mix_into(input_frame, h, &mut self.mean, None, &mut self.scratch)?;
         Ok(&self.mean)
     }
 
@@ -253,8 +309,13 @@ impl OnlineRegression {
     /// (read it with [`OnlineRegression::covariance`]).
     pub fn step_with_covariance(&mut self, input_frame: &[f64]) -> Result<&[f64]> {
         let h = self.filter.step(input_frame)?;
-        self.regression
-            .mix_into(input_frame, h, &mut self.mean, Some(&mut self.covariance), &mut self.scratch);
+        self.regression.mix_into(
+            input_frame,
+            h,
+            &mut self.mean,
+            Some(&mut self.covariance),
+            &mut self.scratch,
+        )?;
         Ok(&self.mean)
     }
 

@@ -32,7 +32,9 @@ pub enum HmmError {
     #[error("no sequences given")]
     NoData,
     /// The model gives the sequence probability zero (e.g. a forbidden transition is needed).
-    #[error("sequence {sequence} has probability zero under the model (first impossible frame {frame})")]
+    #[error(
+        "sequence {sequence} has probability zero under the model (first impossible frame {frame})"
+    )]
     ImpossibleSequence {
         /// Index of the sequence.
         sequence: usize,
@@ -49,7 +51,10 @@ pub enum HmmError {
 
 impl From<EmissionError> for HmmError {
     fn from(source: EmissionError) -> Self {
-        HmmError::Emission { sequence: None, source }
+        HmmError::Emission {
+            sequence: None,
+            source,
+        }
     }
 }
 
@@ -57,11 +62,16 @@ impl HmmError {
     /// Attaches the index of the sequence on which an emission error happened.
     pub fn in_sequence(self, k: usize) -> Self {
         match self {
-            HmmError::Emission { sequence: None, source } => HmmError::Emission {
+            HmmError::Emission {
+                sequence: None,
+                source,
+            } => HmmError::Emission {
                 sequence: Some(k),
                 source,
             },
-            HmmError::ImpossibleSequence { frame, .. } => HmmError::ImpossibleSequence { sequence: k, frame },
+            HmmError::ImpossibleSequence { frame, .. } => {
+                HmmError::ImpossibleSequence { sequence: k, frame }
+            }
             HmmError::EmptySequence { .. } => HmmError::EmptySequence { sequence: k },
             other => other,
         }

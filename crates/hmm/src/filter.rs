@@ -1,11 +1,12 @@
 //! The online forward filter: one frame in, the current belief out.
 //!
-//! `h_t(j) ∝ b_j(x_t) Σ_i h_{t−1}(i) a_ij` (with `h_0 ∝ π_j b_j(x_0)`), the same
-//! arithmetic as the batch [`Hmm::forward`], so the two agree to the last bit.
+//! `h_t(j) ∝ b_j(x_t) Σ_i h_{t−1}(i) a_ij` (with `h_0 ∝ π_j b_j(x_0)`), by the
+//! same recursion as the batch [`Hmm::forward`] (including its switch to log
+//! space when linear arithmetic would lose a state), so the two agree to the last bit.
 //! No allocation happens per frame.
 
 use crate::error::{HmmError, Result};
-use crate::inference::{filter_step, predict};
+use crate::inference::ForwardCore;
 use crate::model::Hmm;
 use phasekit_emission::{Emission, EmissionError, Frames};
 
@@ -14,7 +15,7 @@ use phasekit_emission::{Emission, EmissionError, Frames};
 pub struct ForwardFilter<E: Emission> {
     hmm: Hmm<E>,
     belief: Vec<f64>,
-    pred: Vec<f64>,
+    core: ForwardCore,
     log_b: Vec<f64>,
     scratch: Vec<f64>,
     log_likelihood: f64,
@@ -27,7 +28,7 @@ impl<E: Emission> ForwardFilter<E> {
         let s = hmm.n_states();
         ForwardFilter {
             belief: hmm.start.clone(),
-            pred: vec![0.0; s],
+            core: ForwardCore::new(&hmm),
             log_b: vec![0.0; s],
             scratch: vec![0.0; s],
             log_likelihood: 0.0,
@@ -63,13 +64,10 @@ impl<E: Emission> ForwardFilter<E> {
             }
         })?;
         self.hmm.emission.check_frames(frames)?;
-        self.hmm.emission.log_density_into(frames, &mut self.log_b)?;
-        if self.frames == 0 {
-            self.pred.copy_from_slice(&self.hmm.start);
-        } else {
-            predict(&self.belief, &self.hmm.transition, &mut self.pred);
-        }
-        let lc = filter_step(&self.pred, &self.log_b, &mut self.scratch);
+        self.hmm
+            .emission
+            .log_density_into(frames, &mut self.log_b)?;
+        let lc = self.core.step(&self.hmm, &self.log_b, &mut self.scratch);
         if lc > f64::NEG_INFINITY {
             std::mem::swap(&mut self.belief, &mut self.scratch);
         }
@@ -102,6 +100,7 @@ impl<E: Emission> ForwardFilter<E> {
     /// Forgets all frames (a new demonstration begins).
     pub fn reset(&mut self) {
         self.belief.copy_from_slice(&self.hmm.start);
+        self.core.reset(&self.hmm);
         self.log_likelihood = 0.0;
         self.frames = 0;
     }

@@ -120,12 +120,22 @@ impl<E: Emission> Hmm<E> {
         }
     }
 
-    fn accumulate_sequence(&self, k: usize, data: &SequenceSet, acc: &mut ExpectedStatistics<E::Stats>) -> Result<()> {
+    fn accumulate_sequence(
+        &self,
+        k: usize,
+        data: &SequenceSet,
+        acc: &mut ExpectedStatistics<E::Stats>,
+    ) -> Result<()> {
         let seq = data.get(k);
         let s = self.n_states();
-        let log_b = self.emission.log_density(seq).map_err(|e| HmmError::from(e).in_sequence(k))?;
+        let log_b = self
+            .emission
+            .log_density(seq)
+            .map_err(|e| HmmError::from(e).in_sequence(k))?;
         let mut gamma = vec![0.0; log_b.len()];
-        let (xi, ll) = self.posteriors_into(&log_b, &mut gamma).map_err(|e| e.in_sequence(k))?;
+        let (xi, ll) = self
+            .posteriors_into(&log_b, &mut gamma)
+            .map_err(|e| e.in_sequence(k))?;
         acc.log_likelihood += ll;
         for (a, g) in acc.start.iter_mut().zip(&gamma[..s]) {
             *a += g;
@@ -163,7 +173,12 @@ impl<E: Emission> Hmm<E> {
 
     /// The M-step: new parameters from expected statistics. Frozen parts are kept;
     /// a transition row with no expected visits keeps its previous values.
-    pub fn maximise(&self, stats: &ExpectedStatistics<E::Stats>, update: Update, reg: &Regularization) -> Result<(Hmm<E>, MStepReport)> {
+    pub fn maximise(
+        &self,
+        stats: &ExpectedStatistics<E::Stats>,
+        update: Update,
+        reg: &Regularization,
+    ) -> Result<(Hmm<E>, MStepReport)> {
         let s = self.n_states();
         let mut start = self.start.clone();
         let mut transition = self.transition.clone();
@@ -388,7 +403,9 @@ impl BaumWelch {
         }
         phasekit_emission::check_dim(template.dim(), data.dim())?;
         for (k, seq) in data.iter().enumerate() {
-            template.check_frames(seq).map_err(|e| HmmError::from(e).in_sequence(k))?;
+            template
+                .check_frames(seq)
+                .map_err(|e| HmmError::from(e).in_sequence(k))?;
         }
         let mut best: Option<Fitted<E>> = None;
         let mut finals = Vec::with_capacity(self.restarts);
@@ -399,7 +416,8 @@ impl BaumWelch {
                 (r, Init::KBins { .. }) if r > 0 => Init::KMeans,
                 (_, init) => init,
             };
-            let run = initialise(template, data, init, &self.regularization, &mut rng).and_then(|hmm| self.run(hmm, data));
+            let run = initialise(template, data, init, &self.regularization, &mut rng)
+                .and_then(|hmm| self.run(hmm, data));
             match run {
                 Ok(fitted) => {
                     let obj = *fitted.report.objective.last().unwrap_or(&f64::NEG_INFINITY);

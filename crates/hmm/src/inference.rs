@@ -5,10 +5,15 @@
 //! `log α_t(i) = log h_t(i) + Σ_{s ≤ t} log c_s` and `log p(x_{1:T}) = Σ_t log c_t`.
 //! Each step shifts the emission log-densities by their maximum before
 //! exponentiating, so densities far below `e^{−745}` (36-dimensional Gaussians)
-//! never underflow; if a step still underflows it is redone in log space. The
-//! backward pass is normalised per frame likewise and falls back to a log-space
-//! pass for the whole sequence if it ever underflows. Forbidden transitions
-//! (`a_ij = 0`) give `−inf`, never NaN.
+//! never underflow. Linear (scaled) arithmetic is used only while it is exact:
+//! when some reachable state's predicted probability drops below `1e-290`
+//! (e.g. a glitch frame rules a state out by more than `e^{−745}`, and the
+//! chain cannot re-enter it), the prediction is carried in log space until the
+//! dynamic range is small again, so that a state ruled out by one frame can
+//! still come back when later frames favour it. The backward pass is
+//! normalised per frame likewise, checks the same bounds and otherwise falls
+//! back to a (per-frame normalised) log-space pass for the whole sequence.
+//! Forbidden transitions (`a_ij = 0`) give `−inf`, never NaN.
 
 use crate::error::{HmmError, Result};
 use crate::model::Hmm;
@@ -42,13 +47,24 @@ impl Forward {
     }
 
     /// `log α_t(i) = log p(x_{1:t}, z_t = i)`, `T × S` row-major.
+    ///
+    /// Computed from the filtered probabilities, so entries of states holding
+    /// less than about `1e-300` of a frame's filtered mass are not exact (and
+    /// are `−inf` below `~1e-323`); `logsumexp_i(log α_t(i) + log β_t(i))` is
+    /// unaffected.
     pub fn log_alpha(&self) -> Vec<f64> {
         let s = self.n_states;
         let mut acc = 0.0;
         let mut out = Vec::with_capacity(self.filtered.len());
         for (row, lc) in self.filtered.chunks_exact(s).zip(&self.log_normalisers) {
             acc += lc;
-            out.extend(row.iter().map(|h| if *h > 0.0 { h.ln() + acc } else { f64::NEG_INFINITY }));
+            out.extend(row.iter().map(|h| {
+                if *h > 0.0 {
+                    h.ln() + acc
+                } else {
+                    f64::NEG_INFINITY
+                }
+            }));
         }
         out
     }
@@ -74,37 +90,184 @@ pub struct ViterbiPath {
     pub log_probability: f64,
 }
 
-/// One filtering step: `h_j ∝ pred_j b_j(x)` from the predicted distribution
-/// `pred` and the log-densities `log_b`. Returns `log Σ_j pred_j b_j(x)`
-/// (`−inf`, with `out` all zero, when the frame is impossible).
-#[inline]
-pub(crate) fn filter_step(pred: &[f64], log_b: &[f64], out: &mut [f64]) -> f64 {
-    let m = log_b.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-    if m == f64::NEG_INFINITY {
-        out.fill(0.0);
-        return f64::NEG_INFINITY;
+/// Probabilities at or above this keep full relative precision in the scaled
+/// recursions: a term that underflowed carries an absolute error of at most
+/// ~1e-308 after normalisation, negligible next to them.
+const SAFE: f64 = 1e-290;
+
+/// A normaliser below this is not divided out but absorbed by re-shifting the
+/// exponent, so that underflowed terms are never magnified by more than `1/ε`.
+const RESCALE: f64 = f64::EPSILON;
+
+/// The forward recursion between two frames: the prediction
+/// `p(z_t = j | x_{1:t−1})` for the next frame, kept in linear form while every
+/// reachable state's predicted probability is at least [`SAFE`] (then linear
+/// arithmetic is exact), and in log form otherwise.
+///
+/// Both the batch [`Hmm::forward`] and the online [`crate::ForwardFilter`] step
+/// this, so they agree to the last bit.
+#[derive(Debug, Clone)]
+pub(crate) struct ForwardCore {
+    /// Linear prediction (valid when `!log_mode`).
+    pred: Vec<f64>,
+    /// Log prediction (valid when `log_mode`).
+    log_pred: Vec<f64>,
+    /// Where the prediction is exactly positive (structural reachability).
+    reachable: Vec<bool>,
+    log_mode: bool,
+    // Scratch.
+    alive: Vec<bool>,
+    reach_next: Vec<bool>,
+    pred_next: Vec<f64>,
+    log_h: Vec<f64>,
+    terms: Vec<f64>,
+}
+
+impl ForwardCore {
+    /// The recursion before the first frame of `hmm`.
+    pub(crate) fn new<E: Emission>(hmm: &Hmm<E>) -> Self {
+        let s = hmm.n_states();
+        let mut core = ForwardCore {
+            pred: vec![0.0; s],
+            log_pred: vec![f64::NEG_INFINITY; s],
+            reachable: vec![false; s],
+            log_mode: false,
+            alive: vec![false; s],
+            reach_next: vec![false; s],
+            pred_next: vec![0.0; s],
+            log_h: vec![f64::NEG_INFINITY; s],
+            terms: vec![f64::NEG_INFINITY; s],
+        };
+        core.reset(hmm);
+        core
     }
-    let mut c = 0.0;
-    for ((o, p), lb) in out.iter_mut().zip(pred).zip(log_b) {
-        *o = p * (lb - m).exp();
-        c += *o;
+
+    /// Back to the initial distribution (before the first frame).
+    pub(crate) fn reset<E: Emission>(&mut self, hmm: &Hmm<E>) {
+        self.pred.copy_from_slice(&hmm.start);
+        self.log_pred.copy_from_slice(&hmm.log_start);
+        for (r, p) in self.reachable.iter_mut().zip(&hmm.start) {
+            *r = *p > 0.0;
+        }
+        self.log_mode = hmm.start.iter().any(|p| *p > 0.0 && *p < SAFE);
     }
-    if c > 0.0 && c.is_finite() && c >= f64::MIN_POSITIVE * 1e6 {
-        let inv = 1.0 / c;
-        out.iter_mut().for_each(|o| *o *= inv);
-        return m + c.ln();
+
+    /// `out_j = pred_j e^{log b_j − m}` over the possible states; returns their sum.
+    fn scaled(&self, log_b: &[f64], m: f64, out: &mut [f64]) -> f64 {
+        let mut c = 0.0;
+        for (j, o) in out.iter_mut().enumerate() {
+            *o = if self.alive[j] {
+                self.pred[j] * (log_b[j] - m).exp()
+            } else {
+                0.0
+            };
+            c += *o;
+        }
+        c
     }
-    // The predicted mass sits where the densities are negligible: redo the frame in log space.
-    for ((o, p), lb) in out.iter_mut().zip(pred).zip(log_b) {
-        *o = if *p > 0.0 { p.ln() + lb } else { f64::NEG_INFINITY };
+
+    /// Filters one frame with log-densities `log_b` (length `S`): writes
+    /// `h_t = p(z_t | x_{1:t})` into `h` and returns `log c_t = log p(x_t | x_{1:t−1})`.
+    /// An impossible frame returns `−inf`, zeroes `h` and leaves the recursion unchanged.
+    pub(crate) fn step<E: Emission>(&mut self, hmm: &Hmm<E>, log_b: &[f64], h: &mut [f64]) -> f64 {
+        let s = self.pred.len();
+        let mut any = false;
+        for j in 0..s {
+            self.alive[j] = self.reachable[j] && log_b[j] > f64::NEG_INFINITY;
+            any |= self.alive[j];
+        }
+        if !any {
+            h.fill(0.0);
+            return f64::NEG_INFINITY;
+        }
+        let was_log = self.log_mode;
+        let lc = if was_log {
+            for j in 0..s {
+                self.log_h[j] = if self.alive[j] {
+                    self.log_pred[j] + log_b[j]
+                } else {
+                    f64::NEG_INFINITY
+                };
+            }
+            let lc = log_sum_exp(&self.log_h);
+            for (lh, o) in self.log_h.iter_mut().zip(h.iter_mut()) {
+                *lh -= lc;
+                *o = lh.exp();
+            }
+            lc
+        } else {
+            // Shift by the largest density among the possible states; their
+            // predicted probabilities are at least SAFE, so c ≥ SAFE > 0.
+            let mut m = f64::NEG_INFINITY;
+            for j in 0..s {
+                if self.alive[j] {
+                    m = m.max(log_b[j]);
+                }
+            }
+            let mut c = self.scaled(log_b, m, h);
+            if c < RESCALE {
+                m += c.ln();
+                c = self.scaled(log_b, m, h);
+            }
+            let inv = 1.0 / c;
+            h.iter_mut().for_each(|o| *o *= inv);
+            m + c.ln()
+        };
+
+        // The prediction for the next frame: linear if that is exact, else in log space.
+        let a = &hmm.transition;
+        self.reach_next.fill(false);
+        for i in 0..s {
+            if self.alive[i] {
+                for (r, aij) in self.reach_next.iter_mut().zip(&a[i * s..(i + 1) * s]) {
+                    *r |= *aij > 0.0;
+                }
+            }
+        }
+        predict(h, a, &mut self.pred_next);
+        let exact = self
+            .reach_next
+            .iter()
+            .zip(&self.pred_next)
+            .all(|(r, p)| !*r || *p >= SAFE);
+        if exact {
+            std::mem::swap(&mut self.pred, &mut self.pred_next);
+            self.log_mode = false;
+        } else {
+            if !was_log {
+                // log h_t exactly: in linear mode every possible state's pred_j ≥ SAFE.
+                for j in 0..s {
+                    self.log_h[j] = if self.alive[j] {
+                        self.pred[j].ln() + log_b[j] - lc
+                    } else {
+                        f64::NEG_INFINITY
+                    };
+                }
+            }
+            let la = &hmm.log_transition;
+            for j in 0..s {
+                self.log_pred[j] = if self.reach_next[j] {
+                    for i in 0..s {
+                        self.terms[i] = self.log_h[i] + la[i * s + j];
+                    }
+                    log_sum_exp(&self.terms)
+                } else {
+                    f64::NEG_INFINITY
+                };
+            }
+            self.log_mode = true;
+        }
+        std::mem::swap(&mut self.reachable, &mut self.reach_next);
+        lc
     }
-    let lse = log_sum_exp(out);
-    if lse == f64::NEG_INFINITY {
-        out.fill(0.0);
-        return lse;
+}
+
+/// Subtracts the log-sum-exp of `row` from every entry (if it is finite).
+fn shift_to_zero(row: &mut [f64]) {
+    let z = log_sum_exp(row);
+    if z.is_finite() {
+        row.iter_mut().for_each(|v| *v -= z);
     }
-    out.iter_mut().for_each(|o| *o = (*o - lse).exp());
-    lse
 }
 
 /// `pred_j = Σ_i h_i a_ij`.
@@ -135,13 +298,13 @@ impl<E: Emission> Hmm<E> {
         let t_len = log_b.len() / s;
         let mut filtered = vec![0.0; log_b.len()];
         let mut log_normalisers = Vec::with_capacity(t_len);
-        let mut pred = self.start.clone();
+        let mut core = ForwardCore::new(self);
         for t in 0..t_len {
-            if t > 0 {
-                let (prev, _) = filtered.split_at(t * s);
-                predict(&prev[(t - 1) * s..], &self.transition, &mut pred);
-            }
-            let lc = filter_step(&pred, &log_b[t * s..(t + 1) * s], &mut filtered[t * s..(t + 1) * s]);
+            let lc = core.step(
+                self,
+                &log_b[t * s..(t + 1) * s],
+                &mut filtered[t * s..(t + 1) * s],
+            );
             log_normalisers.push(lc);
             if lc == f64::NEG_INFINITY {
                 // Everything after an impossible frame is impossible too.
@@ -179,11 +342,13 @@ impl<E: Emission> Hmm<E> {
     /// The backward variable `log β_t(i) = log p(x_{t+1:T} | z_t = i)`, `T × S` row-major.
     pub fn backward(&self, seq: Frames<'_>) -> Result<Vec<f64>> {
         let log_b = self.emission_log_densities(seq)?;
-        Ok(self.log_backward(&log_b))
+        Ok(self.log_backward(&log_b, false))
     }
 
-    /// Log-space backward pass (reference form; `S²` exponentials per frame).
-    fn log_backward(&self, log_b: &[f64]) -> Vec<f64> {
+    /// Log-space backward pass (`S²` exponentials per frame). With `normalise`,
+    /// every frame is shifted so that its log-sum-exp is 0 (the shifts are
+    /// dropped), which keeps full precision on long sequences.
+    fn log_backward(&self, log_b: &[f64], normalise: bool) -> Vec<f64> {
         let s = self.n_states();
         let t_len = log_b.len() / s;
         let mut lb = vec![0.0; log_b.len()];
@@ -191,16 +356,22 @@ impl<E: Emission> Hmm<E> {
         for t in (0..t_len.saturating_sub(1)).rev() {
             for i in 0..s {
                 for j in 0..s {
-                    terms[j] = self.log_transition[i * s + j] + log_b[(t + 1) * s + j] + lb[(t + 1) * s + j];
+                    terms[j] = self.log_transition[i * s + j]
+                        + log_b[(t + 1) * s + j]
+                        + lb[(t + 1) * s + j];
                 }
                 lb[t * s + i] = log_sum_exp(&terms);
+            }
+            if normalise {
+                shift_to_zero(&mut lb[t * s..(t + 1) * s]);
             }
         }
         lb
     }
 
-    /// Log-space forward pass (reference form), `T × S` log α.
-    fn log_forward(&self, log_b: &[f64]) -> Vec<f64> {
+    /// Log-space forward pass, every frame shifted so that its log-sum-exp is 0
+    /// (`log h_t`; the shifts are the log normalisers and are dropped).
+    fn log_forward_normalised(&self, log_b: &[f64]) -> Vec<f64> {
         let s = self.n_states();
         let t_len = log_b.len() / s;
         let mut la = vec![0.0; log_b.len()];
@@ -208,6 +379,7 @@ impl<E: Emission> Hmm<E> {
         for j in 0..s {
             la[j] = self.log_start[j] + log_b[j];
         }
+        shift_to_zero(&mut la[..s]);
         for t in 1..t_len {
             for j in 0..s {
                 for i in 0..s {
@@ -215,17 +387,26 @@ impl<E: Emission> Hmm<E> {
                 }
                 la[t * s + j] = log_sum_exp(&terms) + log_b[t * s + j];
             }
+            shift_to_zero(&mut la[t * s..(t + 1) * s]);
         }
         la
     }
 
     /// Posteriors `γ`, expected transitions and log-likelihood from log-densities,
     /// written into `gamma` (`T × S`); returns the expected transitions and `log p`.
-    pub(crate) fn posteriors_into(&self, log_b: &[f64], gamma: &mut [f64]) -> Result<(Vec<f64>, f64)> {
+    pub(crate) fn posteriors_into(
+        &self,
+        log_b: &[f64],
+        gamma: &mut [f64],
+    ) -> Result<(Vec<f64>, f64)> {
         let fwd = self.forward_from(log_b);
         let ll = fwd.log_likelihood();
         if ll == f64::NEG_INFINITY {
-            let frame = fwd.log_normalisers.iter().position(|v| *v == f64::NEG_INFINITY).unwrap_or(0);
+            let frame = fwd
+                .log_normalisers
+                .iter()
+                .position(|v| *v == f64::NEG_INFINITY)
+                .unwrap_or(0);
             return Err(HmmError::ImpossibleSequence { sequence: 0, frame });
         }
         if let Some(xi) = self.scaled_backward_posteriors(&fwd, log_b, gamma) {
@@ -235,17 +416,27 @@ impl<E: Emission> Hmm<E> {
     }
 
     /// Per-frame normalised backward pass combined with the filtered forward
-    /// variable. `None` if it underflows (then the log-space form is used).
-    fn scaled_backward_posteriors(&self, fwd: &Forward, log_b: &[f64], gamma: &mut [f64]) -> Option<Vec<f64>> {
+    /// variable. `None` when linear arithmetic would not be exact (a state
+    /// that carries backward mass gets less than `SAFE`, or the forward and
+    /// backward messages barely overlap); then the log-space form is used.
+    fn scaled_backward_posteriors(
+        &self,
+        fwd: &Forward,
+        log_b: &[f64],
+        gamma: &mut [f64],
+    ) -> Option<Vec<f64>> {
         let s = self.n_states();
         let t_len = log_b.len() / s;
         let a = &self.transition;
         let h = &fwd.filtered;
         let mut xi = vec![0.0; s * s];
-        // beta: normalised backward variable of frame t+1 (then t); e: shifted densities of frame t+1.
+        // beta: normalised backward variable of frame t+1 (then t); alive: where it
+        // is exactly positive; u: b_j(x_{t+1}) β_{t+1}(j), normalised.
         let mut beta = vec![1.0 / s as f64; s];
+        let mut alive = vec![true; s];
+        let mut alive_next = vec![false; s];
         let mut next = vec![0.0; s];
-        let mut eb = vec![0.0; s];
+        let mut u = vec![0.0; s];
         let last = (t_len - 1) * s;
         let z: f64 = h[last..].iter().zip(&beta).map(|(x, y)| x * y).sum();
         for i in 0..s {
@@ -253,24 +444,50 @@ impl<E: Emission> Hmm<E> {
         }
         for t in (0..t_len - 1).rev() {
             let lb = &log_b[(t + 1) * s..(t + 2) * s];
-            let m = lb.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+            let carries = |j: usize| alive[j] && lb[j] > f64::NEG_INFINITY;
+            let mut m = f64::NEG_INFINITY;
             for j in 0..s {
-                eb[j] = (lb[j] - m).exp() * beta[j];
+                if carries(j) {
+                    m = m.max(lb[j]);
+                }
             }
-            let ht = &h[t * s..(t + 1) * s];
+            if m == f64::NEG_INFINITY {
+                return None;
+            }
+            let fill = |m: f64, u: &mut [f64]| -> f64 {
+                let mut total = 0.0;
+                for j in 0..s {
+                    u[j] = if carries(j) {
+                        (lb[j] - m).exp() * beta[j]
+                    } else {
+                        0.0
+                    };
+                    total += u[j];
+                }
+                total
+            };
+            // Every carrying state has β ≥ SAFE / S, so the sum is positive.
+            let mut total_u = fill(m, &mut u);
+            if total_u < RESCALE {
+                m += total_u.ln();
+                total_u = fill(m, &mut u);
+            }
+            let inv_u = 1.0 / total_u;
+            u.iter_mut().for_each(|v| *v *= inv_u);
             let mut total = 0.0;
             for i in 0..s {
                 let row = &a[i * s..(i + 1) * s];
-                let r: f64 = row.iter().zip(&eb).map(|(x, y)| x * y).sum();
-                next[i] = r;
-                total += r;
+                next[i] = row.iter().zip(&u).map(|(x, y)| x * y).sum();
+                alive_next[i] = (0..s).any(|j| row[j] > 0.0 && carries(j));
+                if alive_next[i] && !(next[i] >= SAFE) {
+                    return None;
+                }
+                total += next[i];
             }
-            if !(total > 0.0 && total.is_finite()) {
-                return None;
-            }
-            // ξ_t(i,j) ∝ h_t(i) a_ij e_j β_{t+1}(j); its normaliser is Σ_i h_t(i) r_i.
+            // ξ_t(i,j) ∝ h_t(i) a_ij u_j; its normaliser is Σ_i h_t(i) next_i.
+            let ht = &h[t * s..(t + 1) * s];
             let zx: f64 = ht.iter().zip(&next).map(|(x, y)| x * y).sum();
-            if !(zx > 0.0 && zx.is_finite()) {
+            if !(zx >= SAFE && zx.is_finite()) {
                 return None;
             }
             let inv = 1.0 / zx;
@@ -280,34 +497,50 @@ impl<E: Emission> Hmm<E> {
                     continue;
                 }
                 for j in 0..s {
-                    xi[i * s + j] += hi * a[i * s + j] * eb[j];
+                    xi[i * s + j] += hi * a[i * s + j] * u[j];
                 }
             }
             for i in 0..s {
                 gamma[t * s + i] = ht[i] * next[i] * inv;
                 beta[i] = next[i] / total;
             }
+            std::mem::swap(&mut alive, &mut alive_next);
         }
         Some(xi)
     }
 
-    /// Log-space posteriors (used when the scaled pass underflows).
+    /// Log-space posteriors (used when the scaled pass would not be exact), with
+    /// every frame's forward and backward messages normalised, so that long
+    /// sequences keep full precision.
     fn log_space_posteriors(&self, log_b: &[f64], gamma: &mut [f64]) -> Vec<f64> {
         let s = self.n_states();
         let t_len = log_b.len() / s;
-        let la = self.log_forward(log_b);
-        let lb = self.log_backward(log_b);
-        let ll = log_sum_exp(&la[(t_len - 1) * s..]);
-        for k in 0..la.len() {
-            gamma[k] = (la[k] + lb[k] - ll).exp();
+        let la = self.log_forward_normalised(log_b);
+        let lb = self.log_backward(log_b, true);
+        let mut terms = vec![0.0; s * s];
+        for t in 0..t_len {
+            let row = &mut terms[..s];
+            for i in 0..s {
+                row[i] = la[t * s + i] + lb[t * s + i];
+            }
+            let z = log_sum_exp(row);
+            for i in 0..s {
+                gamma[t * s + i] = (row[i] - z).exp();
+            }
         }
         let mut xi = vec![0.0; s * s];
         for t in 0..t_len - 1 {
             for i in 0..s {
                 for j in 0..s {
-                    let v = la[t * s + i] + self.log_transition[i * s + j] + log_b[(t + 1) * s + j] + lb[(t + 1) * s + j] - ll;
-                    xi[i * s + j] += v.exp();
+                    terms[i * s + j] = la[t * s + i]
+                        + self.log_transition[i * s + j]
+                        + log_b[(t + 1) * s + j]
+                        + lb[(t + 1) * s + j];
                 }
+            }
+            let z = log_sum_exp(&terms);
+            for (x, v) in xi.iter_mut().zip(&terms) {
+                *x += (v - z).exp();
             }
         }
         xi

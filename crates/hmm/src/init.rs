@@ -41,7 +41,13 @@ impl Default for Init {
 pub fn kbins_edges(len: usize, n_states: usize) -> Vec<usize> {
     let step = len as f64 / n_states as f64;
     (0..=n_states)
-        .map(|i| if i == n_states { len } else { (i as f64 * step).round_ties_even() as usize })
+        .map(|i| {
+            if i == n_states {
+                len
+            } else {
+                (i as f64 * step).round_ties_even() as usize
+            }
+        })
         .collect()
 }
 
@@ -55,7 +61,9 @@ fn emission_from_weights<E: Emission>(
     let mut stats = template.new_stats();
     let mut per_state = vec![0.0; s];
     for (k, (seq, w)) in data.iter().zip(weights).enumerate() {
-        template.accumulate(seq, w, &mut stats).map_err(|e| HmmError::from(e).in_sequence(k))?;
+        template
+            .accumulate(seq, w, &mut stats)
+            .map_err(|e| HmmError::from(e).in_sequence(k))?;
         for row in w.chunks_exact(s) {
             for (p, v) in per_state.iter_mut().zip(row) {
                 *p += v;
@@ -147,7 +155,11 @@ pub fn initialise<E: Emission, R: Rng + ?Sized>(
                 })
                 .collect();
             let emission = emission_from_weights(template, data, &weights, reg)?;
-            Hmm::new(vec![1.0 / s as f64; s], vec![1.0 / s as f64; s * s], emission)
+            Hmm::new(
+                vec![1.0 / s as f64; s],
+                vec![1.0 / s as f64; s * s],
+                emission,
+            )
         }
         Init::Random => {
             let mut random_rows = |rows: usize| -> Vec<f64> {

@@ -20,7 +20,9 @@ pub mod model;
 
 pub use error::{HmmError, Result};
 pub use filter::ForwardFilter;
-pub use fit::{BaumWelch, BaumWelchBuilder, Convergence, ExpectedStatistics, FitReport, Fitted, Update};
+pub use fit::{
+    BaumWelch, BaumWelchBuilder, Convergence, ExpectedStatistics, FitReport, Fitted, Update,
+};
 pub use inference::{Forward, Posteriors, ViterbiPath};
 pub use init::{initialise, kbins_edges, Init};
 pub use model::{Hmm, MODEL_FORMAT_VERSION};

@@ -90,7 +90,8 @@ pub(crate) fn check_distribution(name: &'static str, what: &str, p: &[f64]) -> R
 impl<E: Emission> Hmm<E> {
     /// Builds an HMM; `start` has `S` entries, `transition` is `S × S` row-major,
     /// `emission` has `S` states. Probabilities must be finite, non-negative and
-    /// sum to 1 (within `1e-8`; they are then renormalised exactly).
+    /// sum to 1 (within `1e-8`; they are then renormalised, and a vector that
+    /// already sums to 1 up to rounding is kept bit for bit).
     pub fn new(start: Vec<f64>, transition: Vec<f64>, emission: E) -> Result<Self> {
         let s = emission.n_states();
         if start.len() != s {
@@ -102,7 +103,11 @@ impl<E: Emission> Hmm<E> {
         if transition.len() != s * s {
             return Err(HmmError::InvalidParameter {
                 name: "transition",
-                reason: format!("{} entries, expected {s} × {s} = {}", transition.len(), s * s),
+                reason: format!(
+                    "{} entries, expected {s} × {s} = {}",
+                    transition.len(),
+                    s * s
+                ),
             });
         }
         check_distribution("start", "initial distribution", &start)?;
@@ -120,14 +125,22 @@ impl<E: Emission> Hmm<E> {
         Ok(hmm)
     }
 
-    /// Renormalises `π` and the rows of `A` exactly and refreshes their logarithms.
+    /// Renormalises `π` and the rows of `A` and refreshes their logarithms.
+    ///
+    /// A vector that already sums to 1 up to rounding is kept bit for bit, so
+    /// that renormalising is idempotent: a model saved and loaded again (or
+    /// rebuilt from its own parameters) is bit-identical.
     pub(crate) fn normalise(&mut self) {
+        fn renormalise(p: &mut [f64]) {
+            let total: f64 = p.iter().sum();
+            if (total - 1.0).abs() > 4.0 * f64::EPSILON * p.len() as f64 {
+                p.iter_mut().for_each(|v| *v /= total);
+            }
+        }
         let s = self.n_states();
-        let total: f64 = self.start.iter().sum();
-        self.start.iter_mut().for_each(|v| *v /= total);
+        renormalise(&mut self.start);
         for row in self.transition.chunks_exact_mut(s) {
-            let total: f64 = row.iter().sum();
-            row.iter_mut().for_each(|v| *v /= total);
+            renormalise(row);
         }
         self.log_start = self.start.iter().map(|p| ln0(*p)).collect();
         self.log_transition = self.transition.iter().map(|p| ln0(*p)).collect();
@@ -167,7 +180,11 @@ impl<E: Emission> Hmm<E> {
     /// `b_i(x_dims) = ∫ b_i(x) dx_rest`. Used to run a joint human–robot model
     /// on the human's dimensions only.
     pub fn marginal(&self, dims: &[usize]) -> Result<Self> {
-        Hmm::new(self.start.clone(), self.transition.clone(), self.emission.marginal(dims)?)
+        Hmm::new(
+            self.start.clone(),
+            self.transition.clone(),
+            self.emission.marginal(dims)?,
+        )
     }
 
     /// Validates a sequence against the model: non-empty, right dimension, in the emission's support.
@@ -203,20 +220,30 @@ impl<E: Emission> Hmm<E> {
 
     /// Bayesian information criterion `−2 log p(X) + p log N` with `N` the total number of frames.
     pub fn bic(&self, data: &SequenceSet) -> Result<f64> {
-        Ok(-2.0 * self.log_likelihood_all(data)? + self.n_parameters() as f64 * (data.total_frames() as f64).ln())
+        Ok(-2.0 * self.log_likelihood_all(data)?
+            + self.n_parameters() as f64 * (data.total_frames() as f64).ln())
     }
 
     /// Draws a sequence of `len` frames; returns the frames (`len × D` row-major) and the states.
-    pub fn sample<R: Rng + ?Sized>(&self, len: usize, rng: &mut R) -> Result<(Vec<f64>, Vec<usize>)> {
+    pub fn sample<R: Rng + ?Sized>(
+        &self,
+        len: usize,
+        rng: &mut R,
+    ) -> Result<(Vec<f64>, Vec<usize>)> {
         let (s, d) = (self.n_states(), self.dim());
         let mut frames = vec![0.0; len * d];
         let mut states = Vec::with_capacity(len);
         let mut z = 0;
         for t in 0..len {
-            let p = if t == 0 { &self.start[..] } else { &self.transition[z * s..(z + 1) * s] };
+            let p = if t == 0 {
+                &self.start[..]
+            } else {
+                &self.transition[z * s..(z + 1) * s]
+            };
             z = phasekit_emission::categorical::sample_index(p, rng);
             states.push(z);
-            self.emission.sample_into(z, rng, &mut frames[t * d..(t + 1) * d])?;
+            self.emission
+                .sample_into(z, rng, &mut frames[t * d..(t + 1) * d])?;
         }
         Ok((frames, states))
     }

@@ -23,13 +23,18 @@ pub trait Labeller {
 pub fn argmax(v: &[f64]) -> usize {
     v.iter()
         .enumerate()
-        .fold((0, f64::NEG_INFINITY), |b, (j, x)| if *x > b.1 { (j, *x) } else { b })
+        .fold(
+            (0, f64::NEG_INFINITY),
+            |b, (j, x)| if *x > b.1 { (j, *x) } else { b },
+        )
         .0
 }
 
 /// Selects the columns `dims` of every frame.
 pub fn select(seq: Frames<'_>, dims: &[usize]) -> Vec<f64> {
-    seq.iter().flat_map(|x| dims.iter().map(move |&d| x[d])).collect()
+    seq.iter()
+        .flat_map(|x| dims.iter().map(move |&d| x[d]))
+        .collect()
 }
 
 /// Labels by the most responsible mixture component.
@@ -60,7 +65,10 @@ pub struct FilterLabeller<E: Emission> {
 impl<E: Emission> FilterLabeller<E> {
     /// Filtered argmax on all dims of `hmm`.
     pub fn joint(hmm: &Hmm<E>) -> Self {
-        FilterLabeller { hmm: hmm.clone(), dims: None }
+        FilterLabeller {
+            hmm: hmm.clone(),
+            dims: None,
+        }
     }
 
     /// Filtered argmax on the marginal of `hmm` on `dims` (e.g. the human's).
@@ -101,7 +109,11 @@ pub fn label_changes(labels: &[usize], min_run: usize) -> Vec<bool> {
             end += 1;
         }
         let keep = end - t >= min_run.max(1) || stable.is_empty();
-        let label = if keep { labels[t] } else { *stable.last().unwrap_or(&labels[t]) };
+        let label = if keep {
+            labels[t]
+        } else {
+            *stable.last().unwrap_or(&labels[t])
+        };
         stable.extend(std::iter::repeat_n(label, end - t));
         t = end;
     }

@@ -108,10 +108,18 @@ impl KrishnanSettings {
             Some(k) => k,
             None => {
                 let max = self.max_components.min(frames.len()).max(1);
-                select_mixture_bic(&em, |k| Gaussian::standard(CovarianceType::Full, k, d), frames, 1..=max)?.best
+                select_mixture_bic(
+                    &em,
+                    |k| Gaussian::standard(CovarianceType::Full, k, d),
+                    frames,
+                    1..=max,
+                )?
+                .best
             }
         };
-        Ok(em.fit(&Gaussian::standard(CovarianceType::Full, k, d)?, frames)?.model)
+        Ok(em
+            .fit(&Gaussian::standard(CovarianceType::Full, k, d)?, frames)?
+            .model)
     }
 
     /// Fits the frame mixture and the transition clusters on demonstrations.
@@ -119,7 +127,10 @@ impl KrishnanSettings {
         if self.window == 0 || !(0.0..=1.0).contains(&self.prune_fraction) {
             return Err(TscError::InvalidSetting {
                 name: "window/prune_fraction",
-                reason: format!("window must be ≥ 1 and prune_fraction in [0, 1], got {} and {}", self.window, self.prune_fraction),
+                reason: format!(
+                    "window must be ≥ 1 and prune_fraction in [0, 1], got {} and {}",
+                    self.window, self.prune_fraction
+                ),
             });
         }
         let d = data.dim();
@@ -141,7 +152,10 @@ impl KrishnanSettings {
         if owner.is_empty() {
             return Err(TscError::NoTransitions { min_len: 1 });
         }
-        let transition_mixture = self.mixture(Frames::new(&points, d)?, self.transition_clusters.map(|k| k.min(owner.len())))?;
+        let transition_mixture = self.mixture(
+            Frames::new(&points, d)?,
+            self.transition_clusters.map(|k| k.min(owner.len())),
+        )?;
         let labels = transition_mixture.predict(Frames::new(&points, d)?)?;
         let kc = transition_mixture.n_components();
         let mut demos_in = vec![vec![false; data.len()]; kc];
@@ -149,7 +163,10 @@ impl KrishnanSettings {
             demos_in[*l][*k] = true;
         }
         let kept = (0..kc)
-            .filter(|&c| demos_in[c].iter().filter(|x| **x).count() as f64 >= self.prune_fraction * data.len() as f64)
+            .filter(|&c| {
+                demos_in[c].iter().filter(|x| **x).count() as f64
+                    >= self.prune_fraction * data.len() as f64
+            })
             .collect();
         Ok(KrishnanTsc {
             mixture,
@@ -165,13 +182,17 @@ impl KrishnanTsc {
     /// Labels, transitions and their (kept) clusters of one demonstration.
     pub fn segment(&self, seq: Frames<'_>) -> Result<Segmentation> {
         let st = windowed(seq, self.window);
-        let labels = MixtureLabeller(&self.mixture).label(Frames::new(&st, seq.dim() * self.window)?)?;
+        let labels =
+            MixtureLabeller(&self.mixture).label(Frames::new(&st, seq.dim() * self.window)?)?;
         let transitions: Vec<usize> = label_changes(&labels, self.min_run)
             .iter()
             .enumerate()
             .filter_map(|(t, f)| f.then_some(t))
             .collect();
-        let points: Vec<f64> = transitions.iter().flat_map(|&t| seq.frame(t).iter().copied()).collect();
+        let points: Vec<f64> = transitions
+            .iter()
+            .flat_map(|&t| seq.frame(t).iter().copied())
+            .collect();
         let clusters = if transitions.is_empty() {
             Vec::new()
         } else {

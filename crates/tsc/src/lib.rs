@@ -22,5 +22,8 @@ pub mod tsc_hmm;
 
 pub use error::{Result, TscError};
 pub use krishnan::{KrishnanSettings, KrishnanTsc, Segmentation};
-pub use preset::{FitSummary, GmmSettings, Method, Model, OnlinePredictor, Predictor, PresetOptions, DEFAULT_COMPOSITION, PRESETS};
+pub use preset::{
+    FitSummary, GmmSettings, Method, Model, OnlinePredictor, Predictor, PresetOptions,
+    DEFAULT_COMPOSITION, PRESETS,
+};
 pub use tsc_hmm::{Composition, Detector, HmmSettings, Roles, TscHmm, TscReport, TscSettings};

@@ -11,7 +11,9 @@
 use crate::detect::{dilate, runs, select, Labeller, ViterbiLabeller};
 use crate::error::{Result, TscError};
 use crate::krishnan::{KrishnanSettings, KrishnanTsc, Segmentation};
-use crate::tsc_hmm::{disagreement_flags, Composition, Detector, HmmSettings, Roles, TscHmm, TscSettings};
+use crate::tsc_hmm::{
+    disagreement_flags, Composition, Detector, HmmSettings, Roles, TscHmm, TscSettings,
+};
 use phasekit_emission::{CovarianceType, Emission, Frames, Gaussian, Regularization, SequenceSet};
 use phasekit_gmm::{Em, Gmm, MixtureModel};
 use phasekit_gmr::{GmmRegression, HmmRegression, OnlineRegression, Prediction};
@@ -67,6 +69,15 @@ pub enum Method {
     },
     /// Static GMR.
     Gmm(GmmSettings),
+    /// Chooses among `candidates` by K-fold cross-validated prediction error of
+    /// the robot's dims from the human's on the training demonstrations (folds of
+    /// whole demonstrations), then refits the winner on all of them.
+    CrossValidated {
+        /// Labels and methods to choose from.
+        candidates: Vec<(String, Method)>,
+        /// Number of folds (leave-one-demonstration-out when ≥ the number of demonstrations).
+        folds: usize,
+    },
 }
 
 /// Knobs shared by the presets (the command line's flags).
@@ -91,13 +102,13 @@ pub struct PresetOptions {
 }
 
 impl Default for PresetOptions {
-    /// The paper-compatible values: 4 states, 3 transition states, window 0, `reg = 1e-2`,
+    /// The paper-compatible values: 4 states, 3 transition states, window ±2, `reg = 1e-2`,
     /// 40 iterations, tolerance `1e-4`, one run, seed 0.
     fn default() -> Self {
         PresetOptions {
             states: 4,
             tsc_states: 3,
-            window: 0,
+            window: 2,
             reg: 1e-2,
             max_iter: 40,
             tol: 1e-4,
@@ -108,7 +119,18 @@ impl Default for PresetOptions {
 }
 
 /// Names of the presets.
-pub const PRESETS: &[&str] = &["hmm", "tsc-hmm", "tsc-hmm-union", "tsc-hmm-frozen", "tsc-hmm-gated", "tsc-hmm-worst", "gmm-tsc", "gmm"];
+pub const PRESETS: &[&str] = &[
+    "hmm",
+    "hmm-cv",
+    "tsc-hmm-cv",
+    "tsc-hmm",
+    "tsc-hmm-union",
+    "tsc-hmm-frozen",
+    "tsc-hmm-gated",
+    "tsc-hmm-worst",
+    "gmm-tsc",
+    "gmm",
+];
 
 impl Method {
     /// The preset `name` with the given options.
@@ -146,8 +168,34 @@ impl Method {
             "tsc-hmm-union" => tsc(Composition::Union, Detector::Disagreement),
             "tsc-hmm-frozen" => tsc(Composition::UnionFrozen, Detector::Disagreement),
             "tsc-hmm-gated" => tsc(Composition::Gated, Detector::Disagreement),
-            "tsc-hmm-worst" => tsc(Composition::Union, Detector::WorstPrediction { fraction: 0.15 }),
+            "tsc-hmm-worst" => tsc(
+                Composition::Union,
+                Detector::WorstPrediction { fraction: 0.15 },
+            ),
             "gmm" => Method::Gmm(gmm),
+            "hmm-cv" | "tsc-hmm-cv" => {
+                let mut candidates: Vec<(String, Method)> = (o.states..=o.states + o.tsc_states)
+                    .map(|s| {
+                        let mut h = hmm.clone();
+                        h.states = s;
+                        (format!("hmm:states={s}"), Method::Hmm(h))
+                    })
+                    .collect();
+                if name == "tsc-hmm-cv" {
+                    for w in [0, 2, 5] {
+                        let mut t = o.clone();
+                        t.window = w;
+                        candidates.push((
+                            format!("tsc-hmm-union:window={w}"),
+                            Method::preset("tsc-hmm-union", &t)?,
+                        ));
+                    }
+                }
+                Method::CrossValidated {
+                    candidates,
+                    folds: 5,
+                }
+            }
             "gmm-tsc" => Method::GmmTsc {
                 gmm: gmm.clone(),
                 tsc: KrishnanSettings {
@@ -179,25 +227,127 @@ impl Method {
             Method::TscHmm(s) => {
                 let (m, r) = TscHmm::fit(data, roles, s)?;
                 let mut summary = FitSummary::from_hmm(r.union.as_ref().unwrap_or(&r.base));
-                summary.fit_seconds = r.base.fit_seconds + r.transition.fit_seconds + r.union.as_ref().map_or(0.0, |u| u.fit_seconds);
+                summary.fit_seconds = r.base.fit_seconds
+                    + r.transition.fit_seconds
+                    + r.union.as_ref().map_or(0.0, |u| u.fit_seconds);
                 summary.transition_segments = Some(r.segments);
-                Ok((Model::TscHmm { model: m, window: s.window }, summary))
+                Ok((
+                    Model::TscHmm {
+                        model: m,
+                        window: s.window,
+                    },
+                    summary,
+                ))
             }
             Method::Gmm(s) => {
-                let f = s.em()?.fit(&Gaussian::standard(CovarianceType::Full, s.components, data.dim())?, data.all_frames())?;
+                let f = s.em()?.fit(
+                    &Gaussian::standard(CovarianceType::Full, s.components, data.dim())?,
+                    data.all_frames(),
+                )?;
                 Ok((Model::Gmm(f.model), FitSummary::from_gmm(&f.report)))
+            }
+            Method::CrossValidated { candidates, folds } => {
+                let clock = std::time::Instant::now();
+                let scores = cross_validate(candidates, *folds, data, roles)?;
+                let best = scores
+                    .iter()
+                    .enumerate()
+                    .filter(|(_, e)| e.is_finite())
+                    .min_by(|a, b| a.1.total_cmp(b.1))
+                    .map(|(i, _)| i)
+                    .ok_or_else(|| TscError::InvalidSetting {
+                        name: "candidates",
+                        reason: "no candidate could be fitted on every fold".into(),
+                    })?;
+                let (model, mut summary) = candidates[best].1.fit(data, roles)?;
+                summary.fit_seconds = clock.elapsed().as_secs_f64();
+                summary.chosen = Some(candidates[best].0.clone());
+                summary.cv_errors = candidates.iter().map(|c| c.0.clone()).zip(scores).collect();
+                Ok((model, summary))
             }
             Method::GmmTsc { gmm, tsc } => {
                 let ktsc = tsc.fit(data)?;
-                let base = gmm.em()?.fit(&Gaussian::standard(CovarianceType::Full, gmm.components, data.dim())?, data.all_frames())?;
+                let base = gmm.em()?.fit(
+                    &Gaussian::standard(CovarianceType::Full, gmm.components, data.dim())?,
+                    data.all_frames(),
+                )?;
                 let joined = join_mixtures(&base.model, &ktsc.transition_mixture, &ktsc.kept)?;
                 let f = gmm.em()?.fit_from(joined, data.all_frames())?;
                 let mut summary = FitSummary::from_gmm(&f.report);
                 summary.fit_seconds += base.report.fit_seconds;
-                Ok((Model::GmmTsc { tsc: ktsc, mixture: f.model }, summary))
+                Ok((
+                    Model::GmmTsc {
+                        tsc: ktsc,
+                        mixture: f.model,
+                    },
+                    summary,
+                ))
             }
         }
     }
+}
+
+/// Mean squared prediction error of the robot's dims (all of them, in data units)
+/// per frame over held-out demonstrations, for every candidate; `inf` for a
+/// candidate that failed on some fold. Folds are `k mod folds` of the demonstrations.
+pub fn cross_validate(
+    candidates: &[(String, Method)],
+    folds: usize,
+    data: &SequenceSet,
+    roles: &Roles,
+) -> Result<Vec<f64>> {
+    let n = data.len();
+    let folds = folds.clamp(2, n.max(2));
+    if n < 2 {
+        return Err(TscError::InvalidSetting {
+            name: "folds",
+            reason: format!("cross-validation needs at least 2 demonstrations, got {n}"),
+        });
+    }
+    let o = roles.robot.len();
+    Ok(candidates
+        .iter()
+        .map(|(_, method)| {
+            let mut se = 0.0;
+            let mut frames = 0usize;
+            for f in 0..folds {
+                let train: Vec<usize> = (0..n).filter(|k| k % folds != f).collect();
+                let held: Vec<usize> = (0..n).filter(|k| k % folds == f).collect();
+                if held.is_empty() || train.is_empty() {
+                    continue;
+                }
+                let Ok(subset) = data.subset(&train) else {
+                    return f64::INFINITY;
+                };
+                let Ok((model, _)) = method.fit(&subset, roles) else {
+                    return f64::INFINITY;
+                };
+                let Ok(predictor) = model.predictor(roles) else {
+                    return f64::INFINITY;
+                };
+                for &k in &held {
+                    let seq = data.get(k);
+                    let human = select(seq, &roles.human);
+                    let Ok(frames_in) = Frames::new(&human, roles.human.len()) else {
+                        return f64::INFINITY;
+                    };
+                    let Ok(pred) = predictor.predict(frames_in, false) else {
+                        return f64::INFINITY;
+                    };
+                    for (t, x) in seq.iter().enumerate() {
+                        se += roles
+                            .robot
+                            .iter()
+                            .enumerate()
+                            .map(|(j, &r)| (pred.mean[t * o + j] - x[r]).powi(2))
+                            .sum::<f64>();
+                        frames += 1;
+                    }
+                }
+            }
+            se / frames.max(1) as f64
+        })
+        .collect())
 }
 
 /// A mixture of `a`'s components and the `kept` components of `b`, weights in proportion.
@@ -234,6 +384,12 @@ pub struct FitSummary {
     pub jitter: f64,
     /// Number of transition segments, for TSC-HMMs.
     pub transition_segments: Option<usize>,
+    /// The candidate chosen by cross-validation.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub chosen: Option<String>,
+    /// Mean cross-validated squared prediction error of every candidate (`inf` if it failed).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub cv_errors: Vec<(String, f64)>,
 }
 
 impl FitSummary {
@@ -243,8 +399,14 @@ impl FitSummary {
             log_likelihood: r.log_likelihood.clone(),
             converged: r.converged,
             fit_seconds: r.fit_seconds,
-            jitter: r.m_steps.iter().map(|m| m.total_jitter()).fold(0.0, f64::max),
+            jitter: r
+                .m_steps
+                .iter()
+                .map(|m| m.total_jitter())
+                .fold(0.0, f64::max),
             transition_segments: None,
+            chosen: None,
+            cv_errors: Vec::new(),
         }
     }
 
@@ -254,8 +416,14 @@ impl FitSummary {
             log_likelihood: r.log_likelihood.clone(),
             converged: r.converged,
             fit_seconds: r.fit_seconds,
-            jitter: r.m_steps.iter().map(|m| m.total_jitter()).fold(0.0, f64::max),
+            jitter: r
+                .m_steps
+                .iter()
+                .map(|m| m.total_jitter())
+                .fold(0.0, f64::max),
             transition_segments: None,
+            chosen: None,
+            cv_errors: Vec::new(),
         }
     }
 }
@@ -298,7 +466,12 @@ impl Model {
     pub fn n_states(&self) -> usize {
         match self {
             Model::Hmm(h) => h.n_states(),
-            Model::TscHmm { model, .. } => model.union.as_ref().map_or(model.base.n_states() + model.transition.n_states(), |u| u.n_states()),
+            Model::TscHmm { model, .. } => model
+                .union
+                .as_ref()
+                .map_or(model.base.n_states() + model.transition.n_states(), |u| {
+                    u.n_states()
+                }),
             Model::Gmm(g) | Model::GmmTsc { mixture: g, .. } => g.n_components(),
         }
     }
@@ -316,7 +489,9 @@ impl Model {
                     transition: hmm(&model.transition)?,
                 },
             },
-            Model::Gmm(g) | Model::GmmTsc { mixture: g, .. } => Predictor::Gmm(GmmRegression::new(g, &roles.human, &roles.robot)?),
+            Model::Gmm(g) | Model::GmmTsc { mixture: g, .. } => {
+                Predictor::Gmm(GmmRegression::new(g, &roles.human, &roles.robot)?)
+            }
         })
     }
 
@@ -328,14 +503,24 @@ impl Model {
     /// Krishnan's label changes and kept clusters; `gmm` flags label changes.
     pub fn segment(&self, seq: Frames<'_>, roles: &Roles) -> Result<Segmentation> {
         let one = SequenceSet::single(seq.as_slice(), seq.dim())?;
-        let flagged = |flags: &[bool]| flags.iter().enumerate().filter_map(|(t, f)| f.then_some(t)).collect::<Vec<_>>();
+        let flagged = |flags: &[bool]| {
+            flags
+                .iter()
+                .enumerate()
+                .filter_map(|(t, f)| f.then_some(t))
+                .collect::<Vec<_>>()
+        };
         match self {
             Model::Hmm(h) => {
                 let labels = ViterbiLabeller(h).label(seq)?;
                 let flags = &disagreement_flags(h, roles, &one)?[0];
                 let transitions = flagged(flags);
                 let clusters = vec![None; transitions.len()];
-                Ok(Segmentation { labels, transitions, clusters })
+                Ok(Segmentation {
+                    labels,
+                    transitions,
+                    clusters,
+                })
             }
             Model::TscHmm { model, window } => {
                 let labels = ViterbiLabeller(&model.base).label(seq)?;
@@ -348,13 +533,21 @@ impl Model {
                     transitions.extend(r.clone());
                     clusters.extend(states.into_iter().map(Some));
                 }
-                Ok(Segmentation { labels, transitions, clusters })
+                Ok(Segmentation {
+                    labels,
+                    transitions,
+                    clusters,
+                })
             }
             Model::Gmm(g) => {
                 let labels = g.predict(seq)?;
                 let transitions = flagged(&crate::detect::label_changes(&labels, 2));
                 let clusters = vec![None; transitions.len()];
-                Ok(Segmentation { labels, transitions, clusters })
+                Ok(Segmentation {
+                    labels,
+                    transitions,
+                    clusters,
+                })
             }
             Model::GmmTsc { tsc, .. } => tsc.segment(seq),
         }
@@ -397,11 +590,18 @@ impl Predictor {
                 let la = base.input_model().forward(human)?;
                 let lb = transition.input_model().forward(human)?;
                 let o = a.n_out;
-                for (t, (x, y)) in la.log_normalisers().iter().zip(lb.log_normalisers()).enumerate() {
+                for (t, (x, y)) in la
+                    .log_normalisers()
+                    .iter()
+                    .zip(lb.log_normalisers())
+                    .enumerate()
+                {
                     if y > x {
                         a.mean[t * o..(t + 1) * o].copy_from_slice(&b.mean[t * o..(t + 1) * o]);
-                        if let (Some(ca), Some(cb)) = (a.covariance.as_mut(), b.covariance.as_ref()) {
-                            ca[t * o * o..(t + 1) * o * o].copy_from_slice(&cb[t * o * o..(t + 1) * o * o]);
+                        if let (Some(ca), Some(cb)) = (a.covariance.as_mut(), b.covariance.as_ref())
+                        {
+                            ca[t * o * o..(t + 1) * o * o]
+                                .copy_from_slice(&cb[t * o * o..(t + 1) * o * o]);
                         }
                     }
                 }
@@ -471,7 +671,11 @@ impl OnlinePredictor {
     /// `with_covariance` also updates [`OnlinePredictor::covariance`].
     pub fn step(&mut self, human: &[f64], with_covariance: bool) -> Result<&[f64]> {
         match self {
-            OnlinePredictor::Hmm(r) => Ok(if with_covariance { r.step_with_covariance(human)? } else { r.step(human)? }),
+            OnlinePredictor::Hmm(r) => Ok(if with_covariance {
+                r.step_with_covariance(human)?
+            } else {
+                r.step(human)?
+            }),
             OnlinePredictor::Gated {
                 base,
                 transition,
@@ -494,7 +698,13 @@ impl OnlinePredictor {
                 covariance,
                 scratch,
             } => {
-                regression.predict_one_into(human, weights, mean, with_covariance.then_some(&mut covariance[..]), scratch)?;
+                regression.predict_one_into(
+                    human,
+                    weights,
+                    mean,
+                    with_covariance.then_some(&mut covariance[..]),
+                    scratch,
+                )?;
                 Ok(mean)
             }
         }
@@ -504,7 +714,9 @@ impl OnlinePredictor {
     pub fn covariance(&self) -> &[f64] {
         match self {
             OnlinePredictor::Hmm(r) => r.covariance(),
-            OnlinePredictor::Gated { covariance, .. } | OnlinePredictor::Gmm { covariance, .. } => covariance,
+            OnlinePredictor::Gated { covariance, .. } | OnlinePredictor::Gmm { covariance, .. } => {
+                covariance
+            }
         }
     }
 
@@ -512,7 +724,9 @@ impl OnlinePredictor {
     pub fn reset(&mut self) {
         match self {
             OnlinePredictor::Hmm(r) => r.reset(),
-            OnlinePredictor::Gated { base, transition, .. } => {
+            OnlinePredictor::Gated {
+                base, transition, ..
+            } => {
                 base.reset();
                 transition.reset();
             }

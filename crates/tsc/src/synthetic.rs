@@ -16,7 +16,14 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 
 /// Column names of a generated demonstration.
-pub const COLUMNS: [&str; 6] = ["p1_wrist_x", "p1_wrist_y", "p1_wrist_z", "p2_wrist_x", "p2_wrist_y", "p2_wrist_z"];
+pub const COLUMNS: [&str; 6] = [
+    "p1_wrist_x",
+    "p1_wrist_y",
+    "p1_wrist_z",
+    "p2_wrist_x",
+    "p2_wrist_y",
+    "p2_wrist_z",
+];
 
 /// One generated demonstration.
 #[derive(Debug, Clone, PartialEq)]
@@ -33,7 +40,11 @@ pub struct Interaction {
 fn hand(phase: usize, tau: f64, meet: [f64; 3], amp: f64, cycles: f64) -> [f64; 3] {
     match phase {
         1 => meet.map(|m| m * tau),
-        2 => [meet[0], meet[1], meet[2] + amp * (2.0 * std::f64::consts::PI * cycles * tau).sin()],
+        2 => [
+            meet[0],
+            meet[1],
+            meet[2] + amp * (2.0 * std::f64::consts::PI * cycles * tau).sin(),
+        ],
         3 => meet.map(|m| m * (1.0 - tau)),
         _ => [0.0, 0.0, 0.0],
     }
@@ -53,7 +64,11 @@ pub fn generate(n: usize, seed: u64) -> Vec<Interaction> {
                 rng.random_range(10..20),
             ];
             let lag: usize = rng.random_range(2..5);
-            let meet = [0.35 + rng.random_range(-0.04..0.04), rng.random_range(-0.05..0.05), 0.25 + rng.random_range(-0.04..0.04)];
+            let meet = [
+                0.35 + rng.random_range(-0.04..0.04),
+                rng.random_range(-0.05..0.05),
+                0.25 + rng.random_range(-0.04..0.04),
+            ];
             // The robot meets the human's hand: same point seen from the facing partner.
             let robot_meet = [meet[0] + 0.02, -meet[1], meet[2] - 0.01];
             let amp = 0.04 + rng.random_range(-0.01..0.01);

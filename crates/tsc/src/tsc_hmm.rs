@@ -158,7 +158,11 @@ impl TscSettings {
 pub type TransitionFlags = Vec<Vec<bool>>;
 
 /// Flags where the human-only and joint filtered argmax states of `hmm` disagree.
-pub fn disagreement_flags(hmm: &Hmm<Gaussian>, roles: &Roles, data: &SequenceSet) -> Result<TransitionFlags> {
+pub fn disagreement_flags(
+    hmm: &Hmm<Gaussian>,
+    roles: &Roles,
+    data: &SequenceSet,
+) -> Result<TransitionFlags> {
     let human = hmm.marginal(&roles.human)?;
     let s = hmm.n_states();
     data.iter()
@@ -174,7 +178,11 @@ pub fn disagreement_flags(hmm: &Hmm<Gaussian>, roles: &Roles, data: &SequenceSet
 }
 
 /// Squared prediction error of the robot dims by HMM-GMR from the human dims, per frame.
-pub fn prediction_errors(hmm: &Hmm<Gaussian>, roles: &Roles, data: &SequenceSet) -> Result<Vec<Vec<f64>>> {
+pub fn prediction_errors(
+    hmm: &Hmm<Gaussian>,
+    roles: &Roles,
+    data: &SequenceSet,
+) -> Result<Vec<Vec<f64>>> {
     let gmr = HmmRegression::new(hmm, &roles.human, &roles.robot)?;
     let o = roles.robot.len();
     data.iter()
@@ -184,14 +192,25 @@ pub fn prediction_errors(hmm: &Hmm<Gaussian>, roles: &Roles, data: &SequenceSet)
             Ok(seq
                 .iter()
                 .enumerate()
-                .map(|(t, x)| roles.robot.iter().enumerate().map(|(j, &r)| (pred.mean[t * o + j] - x[r]).powi(2)).sum())
+                .map(|(t, x)| {
+                    roles
+                        .robot
+                        .iter()
+                        .enumerate()
+                        .map(|(j, &r)| (pred.mean[t * o + j] - x[r]).powi(2))
+                        .sum()
+                })
                 .collect())
         })
         .collect()
 }
 
 /// The runs of flagged frames as sequences.
-pub fn transition_sequences(data: &SequenceSet, flags: &TransitionFlags, min_run: usize) -> Result<SequenceSet> {
+pub fn transition_sequences(
+    data: &SequenceSet,
+    flags: &TransitionFlags,
+    min_run: usize,
+) -> Result<SequenceSet> {
     let d = data.dim();
     let mut seqs: Vec<&[f64]> = Vec::new();
     for (seq, f) in data.iter().zip(flags) {
@@ -250,7 +269,11 @@ pub fn union_of(a: &Hmm<Gaussian>, b: &Hmm<Gaussian>, epsilon: f64) -> Result<Hm
     let s = sa + sb;
     let mut trans = vec![0.0; s * s];
     for i in 0..s {
-        let (own, own_s, off, other_s) = if i < sa { (a, sa, 0, sb) } else { (b, sb, sa, sa) };
+        let (own, own_s, off, other_s) = if i < sa {
+            (a, sa, 0, sb)
+        } else {
+            (b, sb, sa, sa)
+        };
         let li = i - off;
         for j in 0..own_s {
             trans[i * s + off + j] = (1.0 - epsilon) * own.transition()[li * own_s + j];
@@ -267,7 +290,11 @@ pub fn union_of(a: &Hmm<Gaussian>, b: &Hmm<Gaussian>, epsilon: f64) -> Result<Hm
 
 impl TscHmm {
     /// Algorithm 1 and the chosen composition, on joint training sequences.
-    pub fn fit(data: &SequenceSet, roles: &Roles, settings: &TscSettings) -> Result<(Self, TscReport)> {
+    pub fn fit(
+        data: &SequenceSet,
+        roles: &Roles,
+        settings: &TscSettings,
+    ) -> Result<(Self, TscReport)> {
         roles.check(data.dim())?;
         let (base, base_report) = settings.base.fit(data)?;
         let flags = match settings.detector {

@@ -6,7 +6,10 @@ use phasekit_tsc::detect::{dilate, disagreement, label_changes, runs, Labeller, 
 use phasekit_tsc::preset::human_frames;
 use phasekit_tsc::synthetic::{generate, with_velocities, Interaction};
 use phasekit_tsc::tsc_hmm::{union_of, TscHmm};
-use phasekit_tsc::{Composition, HmmSettings, KrishnanSettings, Method, Model, PresetOptions, Roles, TscSettings, PRESETS};
+use phasekit_tsc::{
+    Composition, HmmSettings, KrishnanSettings, Method, Model, PresetOptions, Roles, TscSettings,
+    PRESETS,
+};
 use proptest::prelude::*;
 
 fn roles() -> Roles {
@@ -30,13 +33,29 @@ fn features(demos: &[Interaction]) -> Vec<Vec<f64>> {
     let feats: Vec<Vec<f64>> = demos.iter().map(with_velocities).collect();
     let all: Vec<f64> = feats.concat();
     let n = (all.len() / 12) as f64;
-    let mean: Vec<f64> = (0..12).map(|k| all.chunks_exact(12).map(|f| f[k]).sum::<f64>() / n).collect();
+    let mean: Vec<f64> = (0..12)
+        .map(|k| all.chunks_exact(12).map(|f| f[k]).sum::<f64>() / n)
+        .collect();
     let sd: Vec<f64> = (0..12)
-        .map(|k| (all.chunks_exact(12).map(|f| (f[k] - mean[k]).powi(2)).sum::<f64>() / n).sqrt())
+        .map(|k| {
+            (all.chunks_exact(12)
+                .map(|f| (f[k] - mean[k]).powi(2))
+                .sum::<f64>()
+                / n)
+                .sqrt()
+        })
         .collect();
     feats
         .iter()
-        .map(|f| f.chunks_exact(12).flat_map(|x| (0..12).map(|k| (x[k] - mean[k]) / sd[k]).collect::<Vec<_>>()).collect())
+        .map(|f| {
+            f.chunks_exact(12)
+                .flat_map(|x| {
+                    (0..12)
+                        .map(|k| (x[k] - mean[k]) / sd[k])
+                        .collect::<Vec<_>>()
+                })
+                .collect()
+        })
         .collect()
 }
 
@@ -49,7 +68,12 @@ fn data(demos: &[Interaction]) -> SequenceSet {
 fn mean_distance_to_boundary(flags: &[usize], boundaries: &[usize]) -> f64 {
     let total: f64 = flags
         .iter()
-        .map(|&t| boundaries.iter().map(|&b| (t as f64 - b as f64).abs()).fold(f64::INFINITY, f64::min))
+        .map(|&t| {
+            boundaries
+                .iter()
+                .map(|&b| (t as f64 - b as f64).abs())
+                .fold(f64::INFINITY, f64::min)
+        })
         .sum();
     total / flags.len().max(1) as f64
 }
@@ -58,9 +82,21 @@ fn mean_distance_to_boundary(flags: &[usize], boundaries: &[usize]) -> f64 {
 fn label_changes_ignore_one_frame_flips() {
     let labels = [0, 0, 0, 1, 0, 0, 2, 2, 2, 2];
     let flags = label_changes(&labels, 2);
-    let at: Vec<usize> = flags.iter().enumerate().filter_map(|(t, f)| f.then_some(t)).collect();
-    assert_eq!(at, vec![6], "the one-frame flip to 1 is ignored, the change to 2 is kept");
-    let at1: Vec<usize> = label_changes(&labels, 1).iter().enumerate().filter_map(|(t, f)| f.then_some(t)).collect();
+    let at: Vec<usize> = flags
+        .iter()
+        .enumerate()
+        .filter_map(|(t, f)| f.then_some(t))
+        .collect();
+    assert_eq!(
+        at,
+        vec![6],
+        "the one-frame flip to 1 is ignored, the change to 2 is kept"
+    );
+    let at1: Vec<usize> = label_changes(&labels, 1)
+        .iter()
+        .enumerate()
+        .filter_map(|(t, f)| f.then_some(t))
+        .collect();
     assert_eq!(at1, vec![3, 4, 6]);
 }
 
@@ -111,12 +147,19 @@ fn hmm_segments_land_near_true_boundaries() {
     for (d, f) in demos.iter().zip(&feats) {
         let seq = Frames::new(f, 12).unwrap();
         let labels = ViterbiLabeller(&hmm).label(seq).unwrap();
-        let changes: Vec<usize> = label_changes(&labels, 2).iter().enumerate().filter_map(|(t, f)| f.then_some(t)).collect();
+        let changes: Vec<usize> = label_changes(&labels, 2)
+            .iter()
+            .enumerate()
+            .filter_map(|(t, f)| f.then_some(t))
+            .collect();
         assert!(!changes.is_empty());
         distances.push(mean_distance_to_boundary(&changes, &d.boundaries));
     }
     let mean = distances.iter().sum::<f64>() / distances.len() as f64;
-    assert!(mean < 4.0, "Viterbi state changes are on average {mean:.1} frames from a true boundary");
+    assert!(
+        mean < 4.0,
+        "Viterbi state changes are on average {mean:.1} frames from a true boundary"
+    );
 }
 
 #[test]
@@ -131,7 +174,11 @@ fn tsc_transition_frames_cluster_around_boundaries() {
         for (t, flagged) in f.iter().enumerate() {
             if *flagged {
                 total += 1;
-                near += usize::from(d.boundaries.iter().any(|&b| (t as i64 - b as i64).abs() <= 8));
+                near += usize::from(
+                    d.boundaries
+                        .iter()
+                        .any(|&b| (t as i64 - b as i64).abs() <= 8),
+                );
             }
         }
     }
@@ -140,7 +187,10 @@ fn tsc_transition_frames_cluster_around_boundaries() {
     let covered: usize = demos.iter().map(|d| d.boundaries.len() * 17).sum();
     let frames: usize = demos.iter().map(|d| d.phases.len()).sum();
     assert!((covered as f64) < 0.6 * frames as f64);
-    assert!(near as f64 >= 0.8 * total as f64, "{near} of {total} flagged frames near a boundary");
+    assert!(
+        near as f64 >= 0.8 * total as f64,
+        "{near} of {total} flagged frames near a boundary"
+    );
 }
 
 #[test]
@@ -160,11 +210,19 @@ fn krishnan_transitions_land_near_boundaries() {
         let seg = tsc.segment(Frames::new(f, 12).unwrap()).unwrap();
         assert_eq!(seg.labels.len(), d.phases.len());
         assert_eq!(seg.transitions.len(), seg.clusters.len());
-        let kept: Vec<usize> = seg.transitions.iter().zip(&seg.clusters).filter_map(|(t, c)| c.map(|_| *t)).collect();
+        let kept: Vec<usize> = seg
+            .transitions
+            .iter()
+            .zip(&seg.clusters)
+            .filter_map(|(t, c)| c.map(|_| *t))
+            .collect();
         all.push(mean_distance_to_boundary(&kept, &d.boundaries));
     }
     let mean = all.iter().sum::<f64>() / all.len() as f64;
-    assert!(mean < 6.0, "kept transitions are on average {mean:.1} frames from a true boundary");
+    assert!(
+        mean < 6.0,
+        "kept transitions are on average {mean:.1} frames from a true boundary"
+    );
 }
 
 fn assert_stochastic(v: &[f64], s: usize) {
@@ -188,10 +246,18 @@ fn union_keeps_stochastic_rows_and_frozen_emissions_stay_unchanged() {
         assert_stochastic(initial.transition(), 7);
         let (a, b) = (u.emission(), initial.emission());
         if composition == Composition::UnionFrozen {
-            assert_eq!(a.means(), b.means(), "frozen emissions must stay bit-identical");
+            assert_eq!(
+                a.means(),
+                b.means(),
+                "frozen emissions must stay bit-identical"
+            );
             assert_eq!(a.covariances_raw(), b.covariances_raw());
         } else {
-            assert_ne!(a.means(), b.means(), "warm-started emissions are re-estimated");
+            assert_ne!(
+                a.means(),
+                b.means(),
+                "warm-started emissions are re-estimated"
+            );
         }
     }
 }
@@ -210,7 +276,9 @@ fn every_preset_fits_predicts_online_like_batch_and_round_trips() {
     };
     for name in PRESETS {
         let method = Method::preset(name, &options).unwrap();
-        let (model, summary) = method.fit(&train, &roles()).unwrap_or_else(|e| panic!("{name}: {e}"));
+        let (model, summary) = method
+            .fit(&train, &roles())
+            .unwrap_or_else(|e| panic!("{name}: {e}"));
         assert!(!summary.log_likelihood.is_empty(), "{name}");
         let predictor = model.predictor(&roles()).unwrap();
         let batch = predictor.predict(human, true).unwrap();
@@ -220,14 +288,19 @@ fn every_preset_fits_predicts_online_like_batch_and_round_trips() {
         for (t, x) in human.iter().enumerate() {
             let m = online.step(x, true).unwrap().to_vec();
             for j in 0..3 {
-                assert!((m[j] - batch.mean[t * 3 + j]).abs() < 1e-9, "{name}: frame {t}");
+                assert!(
+                    (m[j] - batch.mean[t * 3 + j]).abs() < 1e-9,
+                    "{name}: frame {t}"
+                );
             }
             for (a, b) in online.covariance().iter().zip(&cov[t * 9..(t + 1) * 9]) {
                 assert!((a - b).abs() < 1e-9, "{name}: covariance at frame {t}");
             }
         }
         // Predictions beat the constant mean pose by a wide margin on these data.
-        let mean_pose: Vec<f64> = (3..6).map(|k| test.frames.chunks_exact(6).map(|f| f[k]).sum::<f64>() / human.len() as f64).collect();
+        let mean_pose: Vec<f64> = (3..6)
+            .map(|k| test.frames.chunks_exact(6).map(|f| f[k]).sum::<f64>() / human.len() as f64)
+            .collect();
         let (mut se, mut se0) = (0.0, 0.0);
         for (t, f) in test.frames.chunks_exact(6).enumerate() {
             for j in 0..3 {
@@ -240,20 +313,36 @@ fn every_preset_fits_predicts_online_like_batch_and_round_trips() {
         assert_eq!(seg.labels.len(), human.len());
         let json = serde_json::to_string(&model).unwrap();
         let back: Model = serde_json::from_str(&json).unwrap();
-        let again = back.predictor(&roles()).unwrap().predict(human, false).unwrap();
-        assert_eq!(again.mean, batch.mean, "{name}: serde round trip changes predictions");
+        let again = back
+            .predictor(&roles())
+            .unwrap()
+            .predict(human, false)
+            .unwrap();
+        assert_eq!(
+            again.mean, batch.mean,
+            "{name}: serde round trip changes predictions"
+        );
     }
 }
 
 #[test]
 fn unknown_preset_and_bad_roles_are_clear_errors() {
-    let err = Method::preset("nope", &PresetOptions::default()).unwrap_err().to_string();
-    assert!(err.contains("unknown preset") && err.contains("tsc-hmm"), "{err}");
+    let err = Method::preset("nope", &PresetOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("unknown preset") && err.contains("tsc-hmm"),
+        "{err}"
+    );
     let train = data(&generate(3, 6));
     let bad = Roles {
         human: vec![0, 1],
         robot: vec![1, 2],
     };
-    let err = Method::preset("hmm", &PresetOptions::default()).unwrap().fit(&train, &bad).unwrap_err().to_string();
+    let err = Method::preset("hmm", &PresetOptions::default())
+        .unwrap()
+        .fit(&train, &bad)
+        .unwrap_err()
+        .to_string();
     assert!(err.contains("both input and output"), "{err}");
 }

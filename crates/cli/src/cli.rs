@@ -1,0 +1,417 @@
+//! Command-line arguments of `phasekit` (clap derive).
+
+use clap::{Args, Parser, Subcommand, ValueEnum};
+use std::path::PathBuf;
+
+const TOP_EXAMPLES: &str = "\
+Examples:
+  phasekit demo                                   # the whole pipeline on generated data, in seconds
+  phasekit fit --data nuisi/handshake --method tsc-hmm -o handshake.json
+  phasekit predict --model handshake.json --data nuisi/handshake/test_00.csv
+  phasekit evaluate --data nuisi --methods hmm,tsc-hmm --seeds 20 -o results
+  phasekit <COMMAND> --help                       # every command's options and examples";
+
+/// Learn human–robot interactions from demonstrations: segment them into
+/// phases and predict the robot's motion from the human's.
+#[derive(Debug, Parser)]
+#[command(name = "phasekit", version, after_help = TOP_EXAMPLES, propagate_version = true, max_term_width = 100)]
+pub struct Cli {
+    /// The command.
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+/// The commands.
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Fit a method to demonstrations and save the model file.
+    #[command(after_help = with_presets(FIT_EXAMPLES))]
+    Fit(FitArgs),
+    /// Per-frame states, transition frames and transition clusters of demonstrations.
+    #[command(after_help = SEGMENT_EXAMPLES)]
+    Segment(SegmentArgs),
+    /// Predict the robot's trajectory from the human's columns of demonstrations.
+    #[command(after_help = PREDICT_EXAMPLES)]
+    Predict(PredictArgs),
+    /// Predict frame by frame from human frames on stdin (one CSV line each).
+    #[command(after_help = STREAM_EXAMPLES)]
+    Stream(StreamArgs),
+    /// Run the paper's experiment: methods × seeds × actions, MSE in cm².
+    #[command(after_help = with_presets(EVALUATE_EXAMPLES))]
+    Evaluate(EvaluateArgs),
+    /// Draw SVG pictures of segmentations, predictions and states.
+    #[command(after_help = PLOT_EXAMPLES)]
+    Plot(PlotArgs),
+    /// The whole pipeline on generated interactions: fit, compare, plot.
+    #[command(after_help = DEMO_EXAMPLES)]
+    Demo(DemoArgs),
+}
+
+/// `--velocity` values.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum VelocityArg {
+    /// Velocities of the human's and the robot's columns (the paper).
+    Both,
+    /// The human's only.
+    Human,
+    /// The robot's only.
+    Robot,
+    /// No velocities.
+    None,
+}
+
+impl From<VelocityArg> for crate::data::Velocity {
+    fn from(v: VelocityArg) -> Self {
+        match v {
+            VelocityArg::Both => crate::data::Velocity::Both,
+            VelocityArg::Human => crate::data::Velocity::Human,
+            VelocityArg::Robot => crate::data::Velocity::Robot,
+            VelocityArg::None => crate::data::Velocity::None,
+        }
+    }
+}
+
+/// Output formats.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum Format {
+    /// JSON.
+    Json,
+    /// CSV.
+    Csv,
+    /// A Markdown table.
+    Md,
+}
+
+/// Which columns are the human's and the robot's.
+#[derive(Debug, Clone, Args)]
+pub struct ColumnArgs {
+    /// The human's columns (inputs), comma-separated globs over the header [default: p1_wrist_*]
+    #[arg(long, value_name = "GLOB,...", value_delimiter = ',')]
+    pub human: Option<Vec<String>>,
+    /// The robot's columns (predicted), comma-separated globs [default: p2_wrist_*]
+    #[arg(long, value_name = "GLOB,...", value_delimiter = ',')]
+    pub robot: Option<Vec<String>>,
+    /// Append first differences (v_t = x_t − x_{t−1}, v_0 = 0) of these columns; bare `--velocity` = both [default: both]
+    #[arg(long, value_enum, value_name = "WHICH", num_args = 0..=1, default_missing_value = "both")]
+    pub velocity: Option<VelocityArg>,
+}
+
+/// Model settings shared by `fit` and `evaluate` (defaults: the paper-compatible protocol).
+#[derive(Debug, Clone, Args)]
+pub struct ModelArgs {
+    /// States of the base HMM (components of a GMM)
+    #[arg(long, value_name = "N", default_value_t = 4)]
+    pub states: usize,
+    /// States of the transition HMM λ_T (TSC-HMM); transition clusters of gmm-tsc (0 = BIC)
+    #[arg(long, value_name = "N", default_value_t = 3)]
+    pub tsc_states: usize,
+    /// Dilation ±W of transition frames (TSC-HMM); frames per window (gmm-tsc)
+    #[arg(long, value_name = "W", default_value_t = 2)]
+    pub window: usize,
+    /// Most EM iterations
+    #[arg(long, value_name = "N", default_value_t = 40)]
+    pub max_iter: usize,
+    /// EM stops when the mean log-likelihood per sequence gains less than this
+    #[arg(long, value_name = "X", default_value_t = 1e-4)]
+    pub tol: f64,
+    /// Added to every covariance diagonal (data units²: 1e-2 on metres is (10 cm)²)
+    #[arg(long, value_name = "X", default_value_t = 1e-2)]
+    pub reg: f64,
+    /// EM runs from different initialisations (the best is kept)
+    #[arg(long, value_name = "N", default_value_t = 1)]
+    pub restarts: usize,
+    /// Seed of every random choice of the fit
+    #[arg(long, value_name = "N", default_value_t = 0)]
+    pub seed: u64,
+    /// Z-score every feature with the training frames' mean and std (stored in the model file)
+    #[arg(long, alias = "standardize")]
+    pub standardise: bool,
+    /// Worker threads [default: all cores]
+    #[arg(long, value_name = "N")]
+    pub threads: Option<usize>,
+}
+
+const FIT_EXAMPLES: &str = "\
+Examples:
+  phasekit fit --data nuisi/handshake -o handshake.json
+  phasekit fit --data nuisi --action rocket --method hmm:states=7 -o rocket.json
+  phasekit fit --data demos/*.csv --human 'h_*' --robot 'r_*' --velocity none --method gmm -o m.json
+  phasekit fit --data nuisi/handshake --method tsc-hmm --format json > report.json
+
+Data: files, or a folder (all its train_*.csv|npy files); for a folder of action
+folders, pick one with --action. Columns default to the human's p1_wrist_* and the
+robot's p2_wrist_* with velocities of both (NuiSI); give --human/--robot otherwise.
+
+Methods (presets): see the list below; settings per method with NAME:key=value,...
+(keys: states, tsc-states, window, reg, max-iter, tol, restarts, seed), e.g.
+tsc-hmm:states=5,window=2. The command-line flags set the defaults of every key.";
+
+/// The help text after a command's options: examples, then the presets.
+fn with_presets(examples: &str) -> String {
+    format!(
+        "{examples}\n\nPresets: {}",
+        phasekit_tsc::PRESETS.join(", ")
+    )
+}
+
+/// `phasekit fit`.
+#[derive(Debug, Args)]
+pub struct FitArgs {
+    /// Demonstration files (CSV with a header, or NPY), or a folder of train_* files
+    #[arg(long, value_name = "DIR|FILE", num_args = 1.., required = true)]
+    pub data: Vec<PathBuf>,
+    /// The action folder to use when --data is a folder of action folders
+    #[arg(long, value_name = "NAME")]
+    pub action: Option<String>,
+    /// The method: a preset, optionally with NAME:key=value,... settings
+    #[arg(long, value_name = "NAME", default_value = "tsc-hmm")]
+    pub method: String,
+    /// Column selection.
+    #[command(flatten)]
+    pub columns: ColumnArgs,
+    /// Model settings.
+    #[command(flatten)]
+    pub model: ModelArgs,
+    /// Write the model file here (JSON)
+    #[arg(short, long, value_name = "PATH")]
+    pub output: Option<PathBuf>,
+    /// Print a fit report on stdout (json: iterations, log-likelihood per iteration, time, …)
+    #[arg(long, value_enum)]
+    pub format: Option<Format>,
+}
+
+const SEGMENT_EXAMPLES: &str = "\
+Examples:
+  phasekit segment --model handshake.json --data nuisi/handshake/test_00.csv
+  phasekit segment --model handshake.json --data nuisi/handshake --format json -o seg.json
+
+CSV columns: file,frame,state,transition,cluster — state is the Viterbi state of the
+frame, transition is 1 on transition frames, cluster the transition cluster (empty
+when none). The files need the human's and the robot's columns.";
+
+/// `phasekit segment`.
+#[derive(Debug, Args)]
+pub struct SegmentArgs {
+    /// Model file written by `phasekit fit`
+    #[arg(long, value_name = "PATH")]
+    pub model: PathBuf,
+    /// Demonstration files, or a folder (all its CSV/NPY files)
+    #[arg(long, value_name = "DIR|FILE", num_args = 1.., required = true)]
+    pub data: Vec<PathBuf>,
+    /// Write here instead of stdout
+    #[arg(short, long, value_name = "PATH")]
+    pub output: Option<PathBuf>,
+    /// csv (default) or json
+    #[arg(long, value_enum, default_value = "csv")]
+    pub format: Format,
+}
+
+const PREDICT_EXAMPLES: &str = "\
+Examples:
+  phasekit predict --model handshake.json --data nuisi/handshake/test_00.csv > robot.csv
+  phasekit predict --model handshake.json --data nuisi/handshake/test_*.csv -o predictions/
+  phasekit predict --model handshake.json --data test_00.csv --covariance -o robot.csv
+
+Output: CSV with a header: frame, the robot's features (as named in the model), and
+with --covariance var_X and cov_X_Y entries of the predictive covariance. Prediction
+is causal: frame t uses the human's frames 0..=t only. The files need only the
+human's columns. Several inputs: one <name>.predicted.csv (or .json) each in the -o folder.";
+
+/// `phasekit predict`.
+#[derive(Debug, Args)]
+pub struct PredictArgs {
+    /// Model file written by `phasekit fit`
+    #[arg(long, value_name = "PATH")]
+    pub model: PathBuf,
+    /// Demonstration files, or a folder (all its CSV/NPY files)
+    #[arg(long, value_name = "DIR|FILE", num_args = 1.., required = true)]
+    pub data: Vec<PathBuf>,
+    /// Add the predictive covariance's entries
+    #[arg(long)]
+    pub covariance: bool,
+    /// Output file (one input) or folder (any number of inputs); stdout if absent
+    #[arg(short, long, value_name = "PATH")]
+    pub output: Option<PathBuf>,
+    /// csv (default) or json ({"file", "features", "mean": [[…] per frame], "covariance": [[[…]]]})
+    #[arg(long, value_enum, default_value = "csv")]
+    pub format: Format,
+}
+
+const STREAM_EXAMPLES: &str = "\
+Examples:
+  cut -d, -f7-9 demo.csv | phasekit stream --model handshake.json
+  my_tracker | phasekit stream --model handshake.json --covariance > robot.csv
+
+Input: one human frame per line: the raw values of the model's human columns, in
+the model's order (velocities are computed inside, causally). A first line with
+names is a header: then lines may hold more columns, and the human's are picked
+by name. An empty line starts a new demonstration. A malformed line is reported
+on stderr and skipped. Output: one CSV line per frame, flushed at once, after a
+header line (see `predict`). At exit, per-frame latency on stderr.";
+
+/// `phasekit stream`.
+#[derive(Debug, Args)]
+pub struct StreamArgs {
+    /// Model file written by `phasekit fit`
+    #[arg(long, value_name = "PATH")]
+    pub model: PathBuf,
+    /// Add the predictive covariance's entries
+    #[arg(long)]
+    pub covariance: bool,
+    /// Do not write the header line
+    #[arg(long)]
+    pub no_header: bool,
+    /// Do not report latency at exit
+    #[arg(short, long)]
+    pub quiet: bool,
+}
+
+const EVALUATE_EXAMPLES: &str = "\
+Examples:
+  phasekit evaluate --data nuisi                      # PROTOCOL.md: 100 seeds, hmm vs tsc-hmm, all actions
+  phasekit evaluate --data nuisi --action handshake --methods hmm,hmm:states=7,tsc-hmm --seeds 20
+  phasekit evaluate --data nuisi --train-size 1000 --methods hmm   # all training demos, one run
+  phasekit evaluate --data nuisi --format json -o results          # writes results.md and results.json
+
+Protocol: seed s trains on a random subset of the training demonstrations (all but
+two by default) and predicts every test_* demonstration from the human's frames.
+Metric: per frame, squared Euclidean error of the robot's position columns (not
+velocities) × unit-scale²; MSE = mean over frames of all test demonstrations;
+mean ± std (population) over seeds. The paired columns compare each method with
+the first one on the same seeds. --seed seeds the fits' own random choices (the
+subsets depend on the seed number only), so runs are reproducible.";
+
+/// `phasekit evaluate`.
+#[derive(Debug, Args)]
+pub struct EvaluateArgs {
+    /// A folder of action folders (each with train_* and test_* files), or one action folder
+    #[arg(long, value_name = "DIR", required = true)]
+    pub data: PathBuf,
+    /// Only these actions (comma-separated folder names)
+    #[arg(long, value_name = "NAME,...", value_delimiter = ',')]
+    pub action: Option<Vec<String>>,
+    /// Methods to compare (presets with optional :key=value,... settings); the first is the reference
+    #[arg(
+        long,
+        alias = "method",
+        value_name = "A,B,...",
+        default_value = "hmm,hmm:states=7,tsc-hmm"
+    )]
+    pub methods: Vec<String>,
+    /// Column selection.
+    #[command(flatten)]
+    pub columns: ColumnArgs,
+    /// Model settings.
+    #[command(flatten)]
+    pub model: ModelArgs,
+    /// Number of seeds (random training subsets)
+    #[arg(long, value_name = "N", default_value_t = 100)]
+    pub seeds: usize,
+    /// Training demonstrations per seed [default: all but two]; ≥ their number: one run on all
+    #[arg(long, value_name = "N")]
+    pub train_size: Option<usize>,
+    /// Factor from data units to reported units (100: metres → cm, MSE in cm²)
+    #[arg(long, value_name = "X", default_value_t = 100.0)]
+    pub unit_scale: f64,
+    /// Also write PREFIX.md and PREFIX.json
+    #[arg(short, long, value_name = "PREFIX")]
+    pub output: Option<PathBuf>,
+    /// What to print: md (default), json or csv
+    #[arg(long, value_enum, default_value = "md")]
+    pub format: Format,
+}
+
+const PLOT_EXAMPLES: &str = "\
+Examples:
+  phasekit plot segmentation --model handshake.json --data nuisi/handshake/test_00.csv -o seg.svg
+  phasekit plot prediction --model handshake.json --data nuisi/handshake/test_00.csv -o pred.svg
+  phasekit plot states --model handshake.json --data nuisi/handshake -o states.svg --x p2_wrist_x --y p2_wrist_z";
+
+/// `phasekit plot`.
+#[derive(Debug, Args)]
+pub struct PlotArgs {
+    /// What to draw.
+    #[command(subcommand)]
+    pub kind: PlotKind,
+}
+
+/// The pictures.
+#[derive(Debug, Subcommand)]
+pub enum PlotKind {
+    /// A demonstration over time: states as colour bands, transition frames marked.
+    #[command(
+        after_help = "Example:\n  phasekit plot segmentation --model m.json --data test_00.csv -o seg.svg"
+    )]
+    Segmentation(PlotArgsCommon),
+    /// Predicted vs true robot trajectories with ±2σ bands.
+    #[command(
+        after_help = "Example:\n  phasekit plot prediction --model m.json --data test_00.csv -o pred.svg"
+    )]
+    Prediction(PlotArgsCommon),
+    /// Trajectories in a 2-D feature plane with the states' and transition clusters' 2σ ellipses.
+    #[command(
+        after_help = "Examples:\n  phasekit plot states --model m.json --data demos/ -o states.svg\n  phasekit plot states --model m.json --data a.csv b.csv --x p1_wrist_x --y p1_wrist_y -o states.svg"
+    )]
+    States(PlotStatesArgs),
+}
+
+/// Arguments of a plot of one demonstration.
+#[derive(Debug, Args)]
+pub struct PlotArgsCommon {
+    /// Model file written by `phasekit fit`
+    #[arg(long, value_name = "PATH")]
+    pub model: PathBuf,
+    /// One demonstration file
+    #[arg(long, value_name = "FILE")]
+    pub data: PathBuf,
+    /// The SVG file to write
+    #[arg(short, long, value_name = "PATH")]
+    pub output: PathBuf,
+}
+
+/// Arguments of `plot states`.
+#[derive(Debug, Args)]
+pub struct PlotStatesArgs {
+    /// Model file written by `phasekit fit`
+    #[arg(long, value_name = "PATH")]
+    pub model: PathBuf,
+    /// Demonstration files, or a folder (all its CSV/NPY files)
+    #[arg(long, value_name = "DIR|FILE", num_args = 1.., required = true)]
+    pub data: Vec<PathBuf>,
+    /// Feature on the horizontal axis [default: the robot's x column]
+    #[arg(long, value_name = "FEATURE")]
+    pub x: Option<String>,
+    /// Feature on the vertical axis [default: the robot's z column]
+    #[arg(long, value_name = "FEATURE")]
+    pub y: Option<String>,
+    /// The SVG file to write
+    #[arg(short, long, value_name = "PATH")]
+    pub output: PathBuf,
+}
+
+const DEMO_EXAMPLES: &str = "\
+Examples:
+  phasekit demo
+  phasekit demo -o /tmp/demo --seed 3
+
+Generates two-agent interactions with known phases (idle, reach, shake, retract),
+fits hmm and tsc-hmm on 12 of them, predicts the other 4 from the human's hand,
+compares with a constant-pose baseline, checks the transitions found against the
+true phase boundaries, and writes the data, the models and three plots to the folder.";
+
+/// `phasekit demo`.
+#[derive(Debug, Args)]
+pub struct DemoArgs {
+    /// Folder for the generated data, models and plots
+    #[arg(short, long, value_name = "DIR", default_value = "phasekit-demo")]
+    pub output: PathBuf,
+    /// Seed of the generated data and the fits
+    #[arg(long, value_name = "N", default_value_t = 0)]
+    pub seed: u64,
+    /// Training demonstrations
+    #[arg(long, value_name = "N", default_value_t = 12)]
+    pub train: usize,
+    /// Test demonstrations
+    #[arg(long, value_name = "N", default_value_t = 4)]
+    pub test: usize,
+}

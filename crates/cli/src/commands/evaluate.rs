@@ -1,0 +1,362 @@
+//! `phasekit evaluate`: the paper's experiment.
+
+use super::{column_hint, feature_spec, preset_options, setup_threads, split_methods};
+use crate::bail;
+use crate::cli::{EvaluateArgs, Format};
+use crate::data::{self, Action, FeatureSpec};
+use crate::error::{CliError, Result};
+use crate::experiment::{
+    constant_mean_mse, evaluate_action, paired, parse_method, prepare, NamedMethod, Protocol, Row,
+};
+use crate::output;
+use phasekit_tsc::PresetOptions;
+use serde::Serialize;
+use std::path::PathBuf;
+
+/// Label of the constant baseline rows.
+pub const BASELINE: &str = "constant-mean";
+
+/// A row of the results with its paired comparison to the first method.
+#[derive(Debug, Clone, Serialize)]
+pub struct ResultRow {
+    /// The row.
+    #[serde(flatten)]
+    pub row: Row,
+    /// Whether this is the constant-mean-pose baseline.
+    pub baseline: bool,
+    /// Method compared with (the first one).
+    pub reference: Option<String>,
+    /// Mean over paired seeds of (MSE − MSE_ref) / MSE_ref.
+    pub paired_change: Option<f64>,
+    /// Fraction of paired seeds where this method's MSE is lower.
+    pub paired_won: Option<f64>,
+    /// Seeds in the comparison.
+    pub paired_seeds: Option<usize>,
+}
+
+/// How the experiment was run, for the JSON output.
+#[derive(Debug, Clone, Serialize)]
+pub struct ProtocolReport {
+    /// The data folder.
+    pub data: PathBuf,
+    /// Actions evaluated.
+    pub actions: Vec<String>,
+    /// Methods, as given.
+    pub methods: Vec<String>,
+    /// Seeds, training subset size, unit scale, standardisation.
+    #[serde(flatten)]
+    pub protocol: Protocol,
+    /// Columns and velocities.
+    pub columns: FeatureSpec,
+    /// Defaults of every method's settings.
+    pub options: PresetOptions,
+}
+
+/// The whole result, `--format json`.
+#[derive(Debug, Clone, Serialize)]
+pub struct Report {
+    /// How it was run.
+    pub protocol: ProtocolReport,
+    /// What is measured.
+    pub metric: String,
+    /// One row per action and method, and a baseline row per action.
+    pub results: Vec<ResultRow>,
+}
+
+/// The unit of the metric.
+pub fn unit(scale: f64) -> &'static str {
+    if scale == 100.0 {
+        "cm"
+    } else if scale == 1000.0 {
+        "mm"
+    } else if scale == 1.0 {
+        "data units"
+    } else {
+        "scaled units"
+    }
+}
+
+fn metric_text(spec: &FeatureSpec, p: &Protocol) -> String {
+    format!(
+        "MSE: per frame, squared Euclidean error of the robot's position columns ({}; velocities excluded), \
+         scaled by unit_scale² = {}², averaged over all frames of all test demonstrations of an action \
+         ({}² for data in metres with unit_scale 100); RMSE = √MSE per seed; mean ± population std over seeds. \
+         Seed s trains on a random subset ({} training demonstrations, drawn with ChaCha8 from seed s). \
+         paired_change = mean over seeds of (MSE − MSE_reference) / MSE_reference; paired_won = fraction of seeds with a lower MSE. \
+         constant-mean predicts the mean robot position of all training demonstrations at every frame.",
+        spec.robot.join(", "),
+        p.unit_scale,
+        unit(p.unit_scale),
+        p.train_size.map_or("all but two".to_string(), |n| n.to_string())
+    )
+}
+
+fn pm(m: f64, s: f64, seeds: usize) -> String {
+    if m.is_finite() && seeds <= 1 {
+        format!("{m:.2}")
+    } else if m.is_finite() {
+        format!("{m:.2} ± {s:.2}")
+    } else {
+        "–".into()
+    }
+}
+
+/// The Markdown table of a report.
+pub fn markdown(r: &Report) -> String {
+    let u = unit(r.protocol.protocol.unit_scale);
+    let mut s = format!(
+        "| action | method | states | MSE ({u}²) | RMSE ({u}) | seeds | failures | fit (s) | predict (µs/frame) | Δ MSE vs {0} | seeds won |\n|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+        r.protocol.methods.first().map_or("first", |m| m.as_str())
+    );
+    for x in &r.results {
+        let row = &x.row;
+        let (change, won) = match (x.paired_change, x.paired_won) {
+            (Some(c), Some(w)) if x.reference.as_deref() != Some(row.method.as_str()) => (
+                format!("{:+.1} %", 100.0 * c),
+                format!("{:.0} %", 100.0 * w),
+            ),
+            _ => ("–".into(), "–".into()),
+        };
+        if x.baseline {
+            s.push_str(&format!(
+                "| {} | {} | – | {:.2} | {:.2} | – | – | – | – | – | – |\n",
+                row.action, row.method, row.mse_mean, row.rmse_mean
+            ));
+        } else {
+            s.push_str(&format!(
+                "| {} | {} | {} | {} | {} | {} | {} | {:.3} | {:.1} | {} | {} |\n",
+                row.action,
+                row.method,
+                row.states,
+                pm(row.mse_mean, row.mse_std, row.seeds),
+                pm(row.rmse_mean, row.rmse_std, row.seeds),
+                row.seeds,
+                row.failures.len(),
+                row.fit_seconds,
+                row.predict_us_per_frame,
+                change,
+                won
+            ));
+        }
+    }
+    s
+}
+
+/// The CSV of a report.
+pub fn csv(r: &Report) -> String {
+    let mut s = String::from("action,method,states,mse_mean,mse_std,rmse_mean,rmse_std,seeds,failures,fit_seconds,predict_us_per_frame,paired_change,paired_won,baseline\n");
+    let opt = |v: Option<f64>| v.map_or(String::new(), |v| v.to_string());
+    for x in &r.results {
+        let row = &x.row;
+        s.push_str(&format!(
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
+            output::csv_field(&row.action),
+            output::csv_field(&row.method),
+            row.states,
+            row.mse_mean,
+            row.mse_std,
+            row.rmse_mean,
+            row.rmse_std,
+            row.seeds,
+            row.failures.len(),
+            row.fit_seconds,
+            row.predict_us_per_frame,
+            opt(x.paired_change),
+            opt(x.paired_won),
+            x.baseline
+        ));
+    }
+    s
+}
+
+fn baseline_row(action: &str, mse: f64) -> Row {
+    Row {
+        action: action.to_string(),
+        method: BASELINE.into(),
+        mse_mean: mse,
+        mse_std: 0.0,
+        rmse_mean: mse.sqrt(),
+        rmse_std: 0.0,
+        seeds: 1,
+        failures: Vec::new(),
+        per_seed_mse: vec![Some(mse)],
+        fit_seconds: 0.0,
+        predict_us_per_frame: 0.0,
+        states: 0,
+    }
+}
+
+/// Number of runs of an action under a protocol (as `evaluate_action` does them).
+fn runs(action: &Action, p: &Protocol) -> usize {
+    let n = action.train.len();
+    let size = p.train_size.unwrap_or(n.saturating_sub(2)).min(n);
+    if size >= n {
+        1
+    } else {
+        p.seeds.max(1)
+    }
+}
+
+/// Runs the experiment and returns the report (progress bar on a terminal).
+pub fn evaluate(
+    data_dir: &std::path::Path,
+    actions: Vec<Action>,
+    spec: &FeatureSpec,
+    defaults: bool,
+    methods: &[NamedMethod],
+    options: &PresetOptions,
+    protocol: &Protocol,
+) -> Result<Report> {
+    for action in &actions {
+        for t in action.train.iter().chain(&action.test) {
+            spec.features(t).map_err(|e| column_hint(e, defaults))?;
+        }
+        if action.test.is_empty() {
+            bail!("{}: no test_* demonstration to predict", action.name);
+        }
+        let all: Vec<data::Table> = action.train.to_vec();
+        for m in methods {
+            super::check_lengths(&all, &m.method, &m.label)?;
+        }
+    }
+    let total: usize = actions
+        .iter()
+        .map(|a| runs(a, protocol) * methods.len())
+        .sum();
+    let bar = output::progress_bar(total as u64, "evaluating");
+    let mut results = Vec::new();
+    for action in &actions {
+        bar.set_message(action.name.clone());
+        let rows = evaluate_action(action, spec, methods, protocol, &|| bar.inc(1))
+            .map_err(CliError::new)?;
+        let reference = rows.first().cloned();
+        for row in rows {
+            let cmp = reference.as_ref().and_then(|b| paired(&row, b));
+            results.push(ResultRow {
+                reference: reference.as_ref().map(|b| b.method.clone()),
+                paired_change: cmp.map(|c| c.0),
+                paired_won: cmp.map(|c| c.1),
+                paired_seeds: cmp.map(|c| c.2),
+                baseline: false,
+                row,
+            });
+        }
+        let prep = prepare(action, spec).map_err(CliError::new)?;
+        results.push(ResultRow {
+            row: baseline_row(&action.name, constant_mean_mse(&prep, protocol.unit_scale)),
+            baseline: true,
+            reference: None,
+            paired_change: None,
+            paired_won: None,
+            paired_seeds: None,
+        });
+    }
+    bar.finish_and_clear();
+    Ok(Report {
+        protocol: ProtocolReport {
+            data: data_dir.to_path_buf(),
+            actions: actions.iter().map(|a| a.name.clone()).collect(),
+            methods: methods.iter().map(|m| m.label.clone()).collect(),
+            protocol: protocol.clone(),
+            columns: spec.clone(),
+            options: options.clone(),
+        },
+        metric: metric_text(spec, protocol),
+        results,
+    })
+}
+
+/// Runs `phasekit evaluate`.
+pub fn run(a: &EvaluateArgs) -> Result<()> {
+    setup_threads(a.model.threads)?;
+    let options = preset_options(&a.model)?;
+    let (spec, defaults) = feature_spec(&a.columns);
+    if a.seeds == 0 {
+        bail!("--seeds must be at least 1");
+    }
+    if !(a.unit_scale.is_finite() && a.unit_scale > 0.0) {
+        bail!(
+            "--unit-scale must be a positive number, not {}",
+            a.unit_scale
+        );
+    }
+    if a.train_size == Some(0) {
+        bail!("--train-size must be at least 1");
+    }
+    let labels = split_methods(&a.methods);
+    if labels.is_empty() {
+        bail!("--methods: no method given");
+    }
+    let methods = labels
+        .iter()
+        .map(|m| parse_method(m, &options).map_err(|e| CliError::new(format!("--methods: {e}"))))
+        .collect::<Result<Vec<_>>>()?;
+    if let Some(prefix) = &a.output {
+        let dir = prefix
+            .parent()
+            .filter(|p| !p.as_os_str().is_empty())
+            .unwrap_or(std::path::Path::new("."));
+        if !dir.is_dir() {
+            bail!(
+                "-o {}: folder {} does not exist",
+                prefix.display(),
+                dir.display()
+            );
+        }
+    }
+    if !a.data.is_dir() {
+        bail!("{}: evaluate needs a folder of action folders (or one action folder) with train_* and test_* files", a.data.display());
+    }
+    let mut actions = data::load_dataset(&a.data).map_err(|e| column_hint(e, defaults))?;
+    if let Some(wanted) = &a.action {
+        let have: Vec<String> = actions.iter().map(|x| x.name.clone()).collect();
+        for w in wanted {
+            if !have.contains(w) {
+                bail!(
+                    "--action {w}: no such action in {} (actions: {})",
+                    a.data.display(),
+                    have.join(", ")
+                );
+            }
+        }
+        actions.retain(|x| wanted.contains(&x.name));
+    }
+    let protocol = Protocol {
+        seeds: a.seeds,
+        train_size: a.train_size,
+        unit_scale: a.unit_scale,
+        standardise: a.model.standardise,
+    };
+    let report = evaluate(
+        &a.data, actions, &spec, defaults, &methods, &options, &protocol,
+    )?;
+    let md = markdown(&report);
+    let json =
+        serde_json::to_string_pretty(&report).map_err(|e| CliError::new(e.to_string()))? + "\n";
+    if let Some(prefix) = &a.output {
+        let with_ext = |ext: &str| {
+            let mut s = prefix.clone().into_os_string();
+            s.push(ext);
+            PathBuf::from(s)
+        };
+        output::write_string(&with_ext(".md"), &format!("{md}\n{}\n", report.metric))?;
+        output::write_string(&with_ext(".json"), &json)?;
+    }
+    let failures: usize = report.results.iter().map(|r| r.row.failures.len()).sum();
+    if failures > 0 {
+        for r in report.results.iter().filter(|r| !r.row.failures.is_empty()) {
+            let (seed, msg) = &r.row.failures[0];
+            eprintln!(
+                "phasekit: warning: {} / {}: {} seed(s) failed; seed {seed}: {msg}",
+                r.row.action,
+                r.row.method,
+                r.row.failures.len()
+            );
+        }
+    }
+    match a.format {
+        Format::Json => output::print_stdout(&json),
+        Format::Csv => output::print_stdout(&csv(&report)),
+        Format::Md => output::print_stdout(&md),
+    }
+}

@@ -1,0 +1,224 @@
+//! `phasekit fit`.
+
+use super::{
+    check_lengths, column_hint, feature_spec, fit_files, preset_options, read_tables, setup_threads,
+};
+use crate::bail;
+use crate::cli::{FitArgs, Format};
+use crate::data::{FeatureSpec, Layout, Table};
+use crate::error::{CliError, Result};
+use crate::experiment::parse_method;
+use crate::model_file::{MethodInfo, ModelFile, Standardisation};
+use crate::output;
+use phasekit_emission::SequenceSet;
+use phasekit_tsc::{FitSummary, PresetOptions, Roles};
+use serde::Serialize;
+use std::path::PathBuf;
+
+/// What `fit --format json` prints.
+#[derive(Debug, Serialize)]
+pub struct FitReport {
+    /// The method as given.
+    pub method: String,
+    /// Total states (components) of the model that predicts.
+    pub states: usize,
+    /// Training files.
+    pub demonstrations: Vec<PathBuf>,
+    /// Training frames.
+    pub frames: usize,
+    /// Feature names, human's then robot's.
+    pub features: Vec<String>,
+    /// Whether features were z-scored.
+    pub standardised: bool,
+    /// What the fit did: `iterations`, `log_likelihood` (per iteration, summed over
+    /// sequences), `converged`, `fit_seconds`, `jitter`, `transition_segments`, …
+    #[serde(flatten)]
+    pub fit: FitSummary,
+    /// Where the model was written.
+    pub model_file: Option<PathBuf>,
+}
+
+/// Features of training tables under a spec; errors name the file.
+pub fn training_features(
+    tables: &[Table],
+    spec: &FeatureSpec,
+    defaults: bool,
+) -> Result<(Layout, Vec<Vec<f64>>)> {
+    let mut layout = None;
+    let mut seqs = Vec::with_capacity(tables.len());
+    for t in tables {
+        let (l, f) = spec.features(t).map_err(|e| column_hint(e, defaults))?;
+        layout = Some(l);
+        seqs.push(f);
+    }
+    let layout = layout.ok_or_else(|| CliError::new("no demonstration to fit"))?;
+    Ok((layout, seqs))
+}
+
+/// Fits `method_spec` to training tables and returns the model file.
+pub fn fit_tables(
+    tables: &[Table],
+    spec: &FeatureSpec,
+    defaults: bool,
+    method_spec: &str,
+    options: &PresetOptions,
+    standardise: bool,
+) -> Result<ModelFile> {
+    let named =
+        parse_method(method_spec, options).map_err(|e| CliError::new(format!("--method: {e}")))?;
+    let (layout, mut seqs) = training_features(tables, spec, defaults)?;
+    check_lengths(tables, &named.method, &named.label)?;
+    let d = layout.features.len();
+    let standardisation = standardise.then(|| Standardisation::fit(&seqs, d));
+    if let Some(s) = &standardisation {
+        let all: Vec<usize> = (0..d).collect();
+        seqs.iter_mut().for_each(|q| s.apply(q, &all));
+    }
+    let data = SequenceSet::new(&seqs, d)?;
+    let roles = Roles {
+        human: layout.human.clone(),
+        robot: layout.robot.clone(),
+    };
+    let (model, summary) = named
+        .method
+        .fit(&data, &roles)
+        .map_err(|e| {
+            let mut msg = format!("fitting `{}` failed: {e}", named.label);
+            if matches!(named.method, phasekit_tsc::Method::TscHmm(_)) && msg.contains("too few frames") {
+                msg.push_str(
+                    "\n  (the transition HMM is trained on the transition segments found in the demonstrations, and they are too few or too short: \
+                     try a larger --window, e.g. --window 2, or fewer --tsc-states)",
+                );
+            }
+            CliError::new(msg)
+        })?;
+    Ok(ModelFile::new(
+        layout,
+        spec.clone(),
+        standardisation,
+        MethodInfo {
+            spec: named.label,
+            settings: named.method,
+        },
+        summary,
+        model,
+    ))
+}
+
+/// Runs `phasekit fit`.
+pub fn run(a: &FitArgs) -> Result<()> {
+    if a.output.is_none() && a.format.is_none() {
+        bail!("nothing to do: give -o MODEL.json to save the model (and/or --format json to print the fit report)");
+    }
+    setup_threads(a.model.threads)?;
+    let options = preset_options(&a.model)?;
+    let (spec, defaults) = feature_spec(&a.columns);
+    let files = fit_files(&a.data, a.action.as_deref())?;
+    let tables = read_tables(&files, true)?;
+    let frames: usize = tables.iter().map(Table::n_rows).sum();
+    let bar = output::spinner(&format!(
+        "fitting {} to {} demonstrations ({frames} frames)",
+        a.method,
+        tables.len()
+    ));
+    let result = fit_tables(
+        &tables,
+        &spec,
+        defaults,
+        &a.method,
+        &options,
+        a.model.standardise,
+    );
+    bar.finish_and_clear();
+    let mf = result?;
+    if let Some(path) = &a.output {
+        mf.save(path)?;
+    }
+    let report = FitReport {
+        method: mf.method.spec.clone(),
+        states: mf.n_states(),
+        demonstrations: files.clone(),
+        frames,
+        features: mf.layout.features.clone(),
+        standardised: mf.standardisation.is_some(),
+        fit: mf.fit.clone(),
+        model_file: a.output.clone(),
+    };
+    match a.format {
+        Some(Format::Json) => {
+            let text =
+                serde_json::to_string_pretty(&report).map_err(|e| CliError::new(e.to_string()))?;
+            output::print_stdout(&(text + "\n"))?;
+        }
+        Some(Format::Csv) => {
+            let mut s = String::from("iteration,log_likelihood\n");
+            for (i, ll) in report.fit.log_likelihood.iter().enumerate() {
+                s.push_str(&format!("{},{}\n", i + 1, ll));
+            }
+            output::print_stdout(&s)?;
+        }
+        Some(Format::Md) => output::print_stdout(&markdown(&report))?,
+        None => {
+            if output::stderr_is_terminal() {
+                eprintln!("{}", summary_line(&report));
+            }
+        }
+    }
+    Ok(())
+}
+
+fn summary_line(r: &FitReport) -> String {
+    format!(
+        "phasekit: fitted {}{} ({} states) to {} demonstrations ({} frames, {} features) in {:.2} s: {} EM iterations, {}{}",
+        r.method,
+        r.fit.chosen.as_ref().map(|c| format!(" (chose {c})")).unwrap_or_default(),
+        r.states,
+        r.demonstrations.len(),
+        r.frames,
+        r.features.len(),
+        r.fit.fit_seconds,
+        r.fit.iterations,
+        if r.fit.converged { "converged" } else { "stopped at --max-iter" },
+        r.model_file.as_ref().map(|p| format!("; model written to {}", p.display())).unwrap_or_default()
+    )
+}
+
+fn markdown(r: &FitReport) -> String {
+    let ll = r
+        .fit
+        .log_likelihood
+        .last()
+        .map_or("–".to_string(), |v| format!("{v:.4}"));
+    let mut s = String::from("| | |\n|---|---|\n");
+    for (k, v) in [
+        ("method", r.method.clone()),
+        ("states", r.states.to_string()),
+        ("demonstrations", r.demonstrations.len().to_string()),
+        ("frames", r.frames.to_string()),
+        ("features", r.features.join(", ")),
+        ("standardised", r.standardised.to_string()),
+        (
+            "chosen by cross-validation",
+            r.fit.chosen.clone().unwrap_or_else(|| "–".into()),
+        ),
+        ("iterations", r.fit.iterations.to_string()),
+        ("converged", r.fit.converged.to_string()),
+        ("final log-likelihood", ll),
+        ("fit time (s)", format!("{:.3}", r.fit.fit_seconds)),
+        (
+            "transition segments",
+            r.fit
+                .transition_segments
+                .map_or("–".into(), |n| n.to_string()),
+        ),
+        (
+            "model file",
+            r.model_file
+                .as_ref()
+                .map_or("–".into(), |p| p.display().to_string()),
+        ),
+    ] {
+        s.push_str(&format!("| {k} | {v} |\n"));
+    }
+    s
+}

@@ -1,0 +1,300 @@
+//! The commands, one module each, and what they share.
+
+pub mod demo;
+pub mod evaluate;
+pub mod fit;
+pub mod plot;
+pub mod predict;
+pub mod segment;
+pub mod stream;
+
+use crate::bail;
+use crate::cli::{ColumnArgs, ModelArgs};
+use crate::data::{self, DataError, FeatureSpec, Table, Velocity};
+use crate::error::{CliError, Result};
+use phasekit_tsc::{Method, PresetOptions};
+use std::path::{Path, PathBuf};
+
+/// Default human columns (NuiSI, PROTOCOL.md).
+pub const DEFAULT_HUMAN: &str = "p1_wrist_*";
+/// Default robot columns.
+pub const DEFAULT_ROBOT: &str = "p2_wrist_*";
+
+/// The column selection of the command line; `true` when a default was used.
+pub fn feature_spec(c: &ColumnArgs) -> (FeatureSpec, bool) {
+    let defaults = c.human.is_none() || c.robot.is_none();
+    let clean = |v: &Option<Vec<String>>, d: &str| -> Vec<String> {
+        v.as_ref()
+            .map(|v| {
+                v.iter()
+                    .map(|s| s.trim().to_string())
+                    .filter(|s| !s.is_empty())
+                    .collect()
+            })
+            .unwrap_or_else(|| vec![d.to_string()])
+    };
+    (
+        FeatureSpec {
+            human: clean(&c.human, DEFAULT_HUMAN),
+            robot: clean(&c.robot, DEFAULT_ROBOT),
+            velocity: c.velocity.map_or(Velocity::Both, Into::into),
+        },
+        defaults,
+    )
+}
+
+/// Adds a hint to column errors when the default columns were used.
+pub fn column_hint(e: DataError, defaults: bool) -> CliError {
+    let unknown = matches!(&e, DataError::UnknownColumn { pattern, .. } if pattern == DEFAULT_HUMAN || pattern == DEFAULT_ROBOT);
+    let e = CliError::from(e);
+    if unknown && defaults {
+        CliError::new(format!(
+            "{e}\n  (the default columns are --human '{DEFAULT_HUMAN}' --robot '{DEFAULT_ROBOT}' for NuiSI data; choose yours with --human and --robot)"
+        ))
+    } else {
+        e
+    }
+}
+
+/// The preset options of the command line.
+pub fn preset_options(m: &ModelArgs) -> Result<PresetOptions> {
+    if !(m.tol.is_finite() && m.tol >= 0.0) {
+        bail!("--tol must be a finite number ≥ 0, not {}", m.tol);
+    }
+    if !(m.reg.is_finite() && m.reg >= 0.0) {
+        bail!("--reg must be a finite number ≥ 0, not {}", m.reg);
+    }
+    if m.states == 0 {
+        bail!("--states must be at least 1");
+    }
+    if m.max_iter == 0 {
+        bail!("--max-iter must be at least 1");
+    }
+    if m.restarts == 0 {
+        bail!("--restarts must be at least 1");
+    }
+    Ok(PresetOptions {
+        states: m.states,
+        tsc_states: m.tsc_states,
+        window: m.window,
+        reg: m.reg,
+        max_iter: m.max_iter,
+        tol: m.tol,
+        restarts: m.restarts,
+        seed: m.seed,
+    })
+}
+
+/// Builds rayon's global pool with `n` threads.
+pub fn setup_threads(n: Option<usize>) -> Result<()> {
+    if let Some(n) = n {
+        if n == 0 {
+            bail!("--threads must be at least 1");
+        }
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(n)
+            .build_global()
+            .map_err(|e| CliError::new(format!("cannot start {n} threads: {e}")))?;
+    }
+    Ok(())
+}
+
+/// Splits `A,B:k=v,k=v,C` into methods: a `key=value` item continues the method before it.
+pub fn split_methods(items: &[String]) -> Vec<String> {
+    let mut out: Vec<String> = Vec::new();
+    for item in items.iter().flat_map(|s| s.split(',')) {
+        let item = item.trim();
+        if item.is_empty() {
+            continue;
+        }
+        match out.last_mut() {
+            Some(prev) if item.contains('=') && !item.contains(':') => {
+                prev.push(if prev.contains(':') { ',' } else { ':' });
+                prev.push_str(item);
+            }
+            _ => out.push(item.to_string()),
+        }
+    }
+    out
+}
+
+/// Smallest number of frames a demonstration needs for `method`, and the reason.
+pub fn min_frames(method: &Method) -> (usize, bool) {
+    match method {
+        Method::Hmm(s) => (s.states, true),
+        Method::TscHmm(s) => (s.base.states, true),
+        Method::Gmm(s) => (s.components, false),
+        Method::GmmTsc { gmm, .. } => (gmm.components, false),
+        Method::CrossValidated { candidates, .. } => candidates
+            .iter()
+            .map(|(_, m)| min_frames(m))
+            .fold((0, false), |(n, p), (m, q)| (n.max(m), p || q)),
+    }
+}
+
+/// Checks that demonstrations are long enough for `method`.
+pub fn check_lengths(tables: &[Table], method: &Method, label: &str) -> Result<()> {
+    let (need, per_sequence) = min_frames(method);
+    if per_sequence {
+        for t in tables {
+            if t.n_rows() < need {
+                bail!(
+                    "{}: {} frame{}, fewer than the {need} states of `{label}`: every demonstration needs at least one frame per state",
+                    t.path.display(),
+                    t.n_rows(),
+                    if t.n_rows() == 1 { "" } else { "s" }
+                );
+            }
+        }
+    } else {
+        let total: usize = tables.iter().map(Table::n_rows).sum();
+        if total < need {
+            bail!("{total} frames in all, fewer than the {need} components of `{label}`");
+        }
+    }
+    Ok(())
+}
+
+fn is_table_file(p: &Path) -> bool {
+    p.is_file()
+        && p.extension()
+            .and_then(|e| e.to_str())
+            .is_some_and(|e| e.eq_ignore_ascii_case("csv") || e.eq_ignore_ascii_case("npy"))
+}
+
+fn list_dir(dir: &Path, filter: impl Fn(&Path) -> bool) -> Result<Vec<PathBuf>> {
+    let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
+        .map_err(|e| CliError::new(format!("{}: cannot read folder: {e}", dir.display())))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| filter(p))
+        .collect();
+    v.sort();
+    Ok(v)
+}
+
+fn name_starts(p: &Path, prefix: &str) -> bool {
+    p.file_name()
+        .and_then(|n| n.to_str())
+        .is_some_and(|n| n.starts_with(prefix))
+}
+
+/// Action folders (subfolders holding `train_*` files) of a folder.
+pub fn action_dirs(dir: &Path) -> Result<Vec<PathBuf>> {
+    let subdirs = list_dir(dir, |p| p.is_dir())?;
+    let mut out = Vec::new();
+    for d in subdirs {
+        if !list_dir(&d, |p| is_table_file(p) && name_starts(p, "train_"))?.is_empty() {
+            out.push(d);
+        }
+    }
+    Ok(out)
+}
+
+fn dir_name(p: &Path) -> String {
+    p.file_name()
+        .and_then(|n| n.to_str())
+        .unwrap_or("?")
+        .to_string()
+}
+
+/// Training files for `fit`: files as given; a folder's `train_*` files; with
+/// `action`, those of the folder's subfolder `action`.
+pub fn fit_files(paths: &[PathBuf], action: Option<&str>) -> Result<Vec<PathBuf>> {
+    let mut out = Vec::new();
+    for p in paths {
+        if !p.exists() {
+            bail!("{}: no such file or folder", p.display());
+        }
+        if p.is_file() {
+            out.push(p.clone());
+            continue;
+        }
+        let dir = match action {
+            Some(a) => {
+                let d = p.join(a);
+                if !d.is_dir() {
+                    let have: Vec<String> = action_dirs(p)?.iter().map(|d| dir_name(d)).collect();
+                    bail!(
+                        "{}: no action folder `{a}` (actions: {})",
+                        p.display(),
+                        if have.is_empty() {
+                            "none".into()
+                        } else {
+                            have.join(", ")
+                        }
+                    );
+                }
+                d
+            }
+            None => p.clone(),
+        };
+        let train = list_dir(&dir, |f| is_table_file(f) && name_starts(f, "train_"))?;
+        if !train.is_empty() {
+            out.extend(train);
+            continue;
+        }
+        let actions = action_dirs(&dir)?;
+        if !actions.is_empty() {
+            let names: Vec<String> = actions.iter().map(|d| dir_name(d)).collect();
+            bail!(
+                "{}: holds several actions ({}); fit one at a time with --action NAME",
+                dir.display(),
+                names.join(", ")
+            );
+        }
+        bail!(
+            "{}: no train_*.csv or train_*.npy file in this folder",
+            dir.display()
+        );
+    }
+    Ok(out)
+}
+
+/// Files for `predict`, `segment` and plots: files as given, a folder's CSV/NPY files.
+pub fn data_files(paths: &[PathBuf]) -> Result<Vec<PathBuf>> {
+    let mut out = Vec::new();
+    for p in paths {
+        if !p.exists() {
+            bail!("{}: no such file or folder", p.display());
+        }
+        if p.is_file() {
+            out.push(p.clone());
+        } else {
+            let files = list_dir(p, is_table_file)?;
+            if files.is_empty() {
+                bail!("{}: no .csv or .npy file in this folder", p.display());
+            }
+            out.extend(files);
+        }
+    }
+    Ok(out)
+}
+
+/// Reads every file; with `same_columns`, all must have the columns of the first.
+pub fn read_tables(files: &[PathBuf], same_columns: bool) -> Result<Vec<Table>> {
+    let tables = files
+        .iter()
+        .map(|f| data::read_table(f))
+        .collect::<data::Result<Vec<_>>>()?;
+    if same_columns {
+        data::check_same_columns(&tables)?;
+    }
+    Ok(tables)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::split_methods;
+
+    #[test]
+    fn method_lists_keep_key_value_settings_together() {
+        let s = |v: &[&str]| split_methods(&v.iter().map(|x| x.to_string()).collect::<Vec<_>>());
+        assert_eq!(s(&["hmm,tsc-hmm"]), ["hmm", "tsc-hmm"]);
+        assert_eq!(
+            s(&["hmm:states=7,reg=0.1,tsc-hmm:window=2"]),
+            ["hmm:states=7,reg=0.1", "tsc-hmm:window=2"]
+        );
+        assert_eq!(s(&["hmm", "gmm:states=3", " ,"]), ["hmm", "gmm:states=3"]);
+        assert_eq!(s(&["hmm,states=5"]), ["hmm:states=5"]);
+    }
+}

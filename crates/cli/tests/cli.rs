@@ -1,0 +1,796 @@
+//! End-to-end tests of the `phasekit` command on generated interactions.
+
+use assert_cmd::Command;
+use phasekit_cli::data::{read_table, FeatureSpec, Velocity};
+use phasekit_cli::model_file::ModelFile;
+use phasekit_cli::pipeline::{predict_table, predictor};
+use phasekit_tsc::{synthetic, PresetOptions};
+use predicates::prelude::*;
+use std::path::{Path, PathBuf};
+use tempfile::TempDir;
+
+/// The TSC-HMM used in the tests: generated interactions need a dilation to
+/// give the transition HMM runs to train on.
+const TSC: &str = "tsc-hmm:window=2";
+
+fn phasekit() -> Command {
+    Command::cargo_bin("phasekit").expect("the phasekit binary is built")
+}
+
+fn write_csv(path: &Path, header: &str, rows: &[Vec<String>]) {
+    let mut s = format!("{header}\n");
+    for r in rows {
+        s.push_str(&r.join(","));
+        s.push('\n');
+    }
+    std::fs::write(path, s).unwrap();
+}
+
+fn rows_of(frames: &[f64]) -> Vec<Vec<String>> {
+    frames
+        .chunks_exact(6)
+        .map(|f| f.iter().map(|v| v.to_string()).collect())
+        .collect()
+}
+
+/// A folder `data/` with 8 training and 3 test demonstrations.
+fn dataset() -> (TempDir, PathBuf) {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    std::fs::create_dir(&data).unwrap();
+    let header = synthetic::COLUMNS.join(",");
+    for (i, demo) in synthetic::generate(11, 7).iter().enumerate() {
+        let name = if i < 8 {
+            format!("train_{i:02}.csv")
+        } else {
+            format!("test_{:02}.csv", i - 8)
+        };
+        write_csv(&data.join(name), &header, &rows_of(&demo.frames));
+    }
+    (dir, data)
+}
+
+fn fit(data: &Path, method: &str, out: &Path) {
+    phasekit()
+        .args(["fit", "--method", method, "--data"])
+        .arg(data)
+        .arg("-o")
+        .arg(out)
+        .assert()
+        .success();
+}
+
+fn parse_csv(text: &str) -> (Vec<String>, Vec<Vec<f64>>) {
+    let mut lines = text.lines();
+    let header = lines
+        .next()
+        .unwrap()
+        .split(',')
+        .map(str::to_string)
+        .collect();
+    let rows = lines
+        .map(|l| l.split(',').map(|c| c.parse().unwrap()).collect())
+        .collect();
+    (header, rows)
+}
+
+/// No file but the given ones (and no temporary file) in `dir`.
+fn only_files(dir: &Path, expected: &[&str]) {
+    let mut names: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    names.sort();
+    let mut want: Vec<String> = expected.iter().map(|s| s.to_string()).collect();
+    want.sort();
+    assert_eq!(names, want, "files in {}", dir.display());
+}
+
+#[test]
+fn fit_predict_evaluate_round_trip() {
+    let (dir, data) = dataset();
+    let model = dir.path().join("model.json");
+    let out = phasekit()
+        .args(["fit", "--method", TSC, "--format", "json", "--data"])
+        .arg(&data)
+        .arg("-o")
+        .arg(&model)
+        .assert()
+        .success()
+        .get_output()
+        .stdout
+        .clone();
+    let report: serde_json::Value = serde_json::from_slice(&out).unwrap();
+    let iterations = report["iterations"].as_u64().unwrap();
+    assert!(iterations >= 1);
+    assert!(report["log_likelihood"].as_array().unwrap().len() as u64 >= iterations);
+    assert!(report["fit_seconds"].as_f64().unwrap() >= 0.0);
+    assert_eq!(report["states"], 7);
+    assert_eq!(
+        report["demonstrations"].as_array().unwrap().len(),
+        8,
+        "a folder means its train_* files"
+    );
+
+    let text = std::fs::read_to_string(&model).unwrap();
+    let json: serde_json::Value = serde_json::from_str(&text).unwrap();
+    assert_eq!(json["format"], "phasekit-model");
+    assert_eq!(json["version"], 1);
+    for key in [
+        "layout",
+        "feature_spec",
+        "standardisation",
+        "roles",
+        "method",
+        "model",
+    ] {
+        assert!(json.get(key).is_some(), "model file has `{key}`");
+    }
+
+    // One input to stdout: frames and robot features.
+    let test0 = data.join("test_00.csv");
+    let out = phasekit()
+        .args(["predict", "--model"])
+        .arg(&model)
+        .arg("--data")
+        .arg(&test0)
+        .assert()
+        .success()
+        .get_output()
+        .stdout
+        .clone();
+    let (header, rows) = parse_csv(&String::from_utf8(out).unwrap());
+    assert_eq!(
+        header,
+        [
+            "frame",
+            "p2_wrist_x",
+            "p2_wrist_y",
+            "p2_wrist_z",
+            "d_p2_wrist_x",
+            "d_p2_wrist_y",
+            "d_p2_wrist_z"
+        ]
+    );
+    assert_eq!(rows.len(), read_table(&test0).unwrap().n_rows());
+    assert!(rows
+        .iter()
+        .enumerate()
+        .all(|(t, r)| r[0] == t as f64 && r.iter().all(|v| v.is_finite())));
+
+    // Several inputs into a folder, with covariance.
+    let preds = dir.path().join("preds");
+    let tests: Vec<PathBuf> = (0..3)
+        .map(|i| data.join(format!("test_{i:02}.csv")))
+        .collect();
+    phasekit()
+        .args(["predict", "--covariance", "--model"])
+        .arg(&model)
+        .arg("--data")
+        .args(&tests)
+        .arg("-o")
+        .arg(&preds)
+        .assert()
+        .success();
+    only_files(
+        &preds,
+        &[
+            "test_00.predicted.csv",
+            "test_01.predicted.csv",
+            "test_02.predicted.csv",
+        ],
+    );
+    let (header, rows) =
+        parse_csv(&std::fs::read_to_string(preds.join("test_01.predicted.csv")).unwrap());
+    assert_eq!(header.len(), 1 + 6 + 21);
+    assert!(
+        header.contains(&"var_p2_wrist_x".to_string())
+            && header.contains(&"cov_p2_wrist_x_p2_wrist_y".to_string())
+    );
+    assert!(rows.iter().all(|r| r[7] > 0.0), "variances are positive");
+
+    // Evaluate with few seeds, JSON on stdout, Markdown and JSON files.
+    let prefix = dir.path().join("results");
+    let out = phasekit()
+        .args([
+            "evaluate",
+            "--methods",
+            &format!("hmm,{TSC}"),
+            "--seeds",
+            "3",
+            "--format",
+            "json",
+            "--data",
+        ])
+        .arg(&data)
+        .arg("-o")
+        .arg(&prefix)
+        .assert()
+        .success()
+        .get_output()
+        .stdout
+        .clone();
+    let report: serde_json::Value = serde_json::from_slice(&out).unwrap();
+    assert!(report["metric"]
+        .as_str()
+        .unwrap()
+        .contains("squared Euclidean error"));
+    assert_eq!(report["protocol"]["seeds"], 3);
+    let results = report["results"].as_array().unwrap();
+    assert_eq!(results.len(), 3, "two methods and the constant baseline");
+    for r in results {
+        for key in [
+            "action",
+            "method",
+            "mse_mean",
+            "mse_std",
+            "rmse_mean",
+            "rmse_std",
+            "seeds",
+        ] {
+            assert!(r.get(key).is_some(), "row has `{key}`");
+        }
+    }
+    assert_eq!(results[0]["method"], "hmm");
+    assert_eq!(results[0]["seeds"], 3);
+    assert_eq!(results[1]["method"], TSC);
+    assert!(results[1]["paired_change"].is_number() && results[1]["paired_won"].is_number());
+    assert_eq!(results[2]["method"], "constant-mean");
+    assert!(results[0]["mse_mean"].as_f64().unwrap() < results[2]["mse_mean"].as_f64().unwrap());
+    let md = std::fs::read_to_string(dir.path().join("results.md")).unwrap();
+    assert!(md.starts_with("| action | method | states | MSE (cm²)"));
+    assert!(md.contains("| data | constant-mean |"));
+    let saved: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.path().join("results.json")).unwrap())
+            .unwrap();
+    assert_eq!(saved, report);
+
+    // The default output is the Markdown table.
+    phasekit()
+        .args(["evaluate", "--methods", "hmm", "--seeds", "2", "--data"])
+        .arg(&data)
+        .assert()
+        .success()
+        .stdout(
+            predicate::str::starts_with("| action | method |")
+                .and(predicate::str::contains("| data | hmm | 4 |")),
+        );
+}
+
+#[test]
+fn model_file_round_trips() {
+    let (dir, data) = dataset();
+    let model = dir.path().join("m.json");
+    phasekit()
+        .args(["fit", "--method", TSC, "--standardise", "--data"])
+        .arg(&data)
+        .arg("-o")
+        .arg(&model)
+        .assert()
+        .success();
+
+    // The same fit in-process.
+    let train: Vec<_> = (0..8)
+        .map(|i| read_table(&data.join(format!("train_{i:02}.csv"))).unwrap())
+        .collect();
+    let spec = FeatureSpec {
+        human: vec!["p1_wrist_*".into()],
+        robot: vec!["p2_wrist_*".into()],
+        velocity: Velocity::Both,
+    };
+    let fitted = phasekit_cli::commands::fit::fit_tables(
+        &train,
+        &spec,
+        false,
+        TSC,
+        &PresetOptions::default(),
+        true,
+    )
+    .unwrap();
+    let loaded = ModelFile::load(&model).unwrap();
+    assert!(loaded.standardisation.is_some());
+    let without_time = |m: &ModelFile| {
+        let mut v: serde_json::Value = serde_json::from_str(&m.to_json().unwrap()).unwrap();
+        v["fit"]["fit_seconds"] = serde_json::Value::Null;
+        v
+    };
+    assert!(
+        without_time(&loaded) == without_time(&fitted),
+        "the saved and loaded model is the one fitted in-process"
+    );
+
+    let test = read_table(&data.join("test_02.csv")).unwrap();
+    let a = predict_table(&fitted, &predictor(&fitted).unwrap(), &test, true).unwrap();
+    let b = predict_table(&loaded, &predictor(&loaded).unwrap(), &test, true).unwrap();
+    assert_eq!(
+        a, b,
+        "a loaded model predicts bit for bit as the fitted one"
+    );
+
+    let out = phasekit()
+        .args(["predict", "--model"])
+        .arg(&model)
+        .arg("--data")
+        .arg(&test.path)
+        .assert()
+        .success()
+        .get_output()
+        .stdout
+        .clone();
+    let (_, rows) = parse_csv(&String::from_utf8(out).unwrap());
+    for (t, r) in rows.iter().enumerate() {
+        assert_eq!(&r[1..], &a.mean[t * 6..(t + 1) * 6], "frame {t}");
+    }
+}
+
+#[test]
+fn segment_output_is_well_formed() {
+    let (dir, data) = dataset();
+    let model = dir.path().join("m.json");
+    fit(&data, TSC, &model);
+    let files: Vec<PathBuf> = (0..2)
+        .map(|i| data.join(format!("test_{i:02}.csv")))
+        .collect();
+    let out = phasekit()
+        .args(["segment", "--model"])
+        .arg(&model)
+        .arg("--data")
+        .args(&files)
+        .assert()
+        .success()
+        .get_output()
+        .stdout
+        .clone();
+    let text = String::from_utf8(out).unwrap();
+    let mut lines = text.lines();
+    assert_eq!(lines.next(), Some("file,frame,state,transition,cluster"));
+    let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
+    let lens: Vec<usize> = files
+        .iter()
+        .map(|f| read_table(f).unwrap().n_rows())
+        .collect();
+    assert_eq!(rows.len(), lens.iter().sum::<usize>());
+    let mut transitions = 0;
+    for (k, f) in files.iter().enumerate() {
+        let mine: Vec<&Vec<&str>> = rows
+            .iter()
+            .filter(|r| Path::new(r[0]) == f.as_path())
+            .collect();
+        assert_eq!(mine.len(), lens[k]);
+        for (t, r) in mine.iter().enumerate() {
+            assert_eq!(r.len(), 5);
+            assert_eq!(r[1].parse::<usize>().unwrap(), t);
+            assert!(r[2].parse::<usize>().unwrap() < 4, "base states 0..4");
+            match r[3] {
+                "0" => assert_eq!(r[4], "", "a cluster only on transition frames"),
+                "1" => {
+                    transitions += 1;
+                    assert!(r[4].is_empty() || r[4].parse::<usize>().unwrap() < 3);
+                }
+                other => panic!("transition flag {other}"),
+            }
+        }
+    }
+    assert!(transitions > 0, "some transition frames are found");
+
+    let seg = dir.path().join("seg.json");
+    phasekit()
+        .args(["segment", "--format", "json", "--model"])
+        .arg(&model)
+        .arg("--data")
+        .args(&files)
+        .arg("-o")
+        .arg(&seg)
+        .assert()
+        .success()
+        .stdout("");
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&seg).unwrap()).unwrap();
+    let v = v.as_array().unwrap();
+    assert_eq!(v.len(), 2);
+    for (k, s) in v.iter().enumerate() {
+        assert_eq!(s["states"].as_array().unwrap().len(), lens[k]);
+        assert_eq!(s["frames"], lens[k]);
+        assert_eq!(
+            s["transitions"].as_array().unwrap().len(),
+            s["clusters"].as_array().unwrap().len()
+        );
+    }
+}
+
+#[test]
+fn stream_matches_predict_and_survives_bad_lines() {
+    let (dir, data) = dataset();
+    let model = dir.path().join("m.json");
+    fit(&data, TSC, &model);
+    let test = data.join("test_01.csv");
+    let out = phasekit()
+        .args(["predict", "--covariance", "--model"])
+        .arg(&model)
+        .arg("--data")
+        .arg(&test)
+        .assert()
+        .success()
+        .get_output()
+        .stdout
+        .clone();
+    let (header, batch) = parse_csv(&String::from_utf8(out).unwrap());
+
+    // Full rows with a header (the human's columns are picked by name), a malformed line in the middle.
+    let raw = std::fs::read_to_string(&test).unwrap();
+    let mut input: Vec<&str> = raw.lines().collect();
+    input.insert(20, "0.1,oops,0.3,0.1,0.2,0.3");
+    input.insert(30, "0.1,0.2");
+    let out = phasekit()
+        .args(["stream", "--covariance", "--model"])
+        .arg(&model)
+        .write_stdin(input.join("\n") + "\n")
+        .assert()
+        .success()
+        .stderr(
+            predicate::str::contains("warning: stdin line 21")
+                .and(predicate::str::contains("line skipped"))
+                .and(predicate::str::contains("p99")),
+        )
+        .get_output()
+        .stdout
+        .clone();
+    let (sheader, streamed) = parse_csv(&String::from_utf8(out).unwrap());
+    assert_eq!(sheader, header);
+    assert_eq!(streamed.len(), batch.len());
+    for (a, b) in batch.iter().zip(&streamed) {
+        for (x, y) in a.iter().zip(b) {
+            assert!((x - y).abs() <= 1e-9 * (1.0 + x.abs()), "{x} vs {y}");
+        }
+    }
+
+    // Just the human's values, no header.
+    let human: String = raw
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').take(3).collect::<Vec<_>>().join(",") + "\n")
+        .collect();
+    let out = phasekit()
+        .args(["stream", "--quiet", "--no-header", "--model"])
+        .arg(&model)
+        .write_stdin(human)
+        .assert()
+        .success()
+        .stderr("")
+        .get_output()
+        .stdout
+        .clone();
+    let streamed: Vec<Vec<f64>> = String::from_utf8(out)
+        .unwrap()
+        .lines()
+        .map(|l| l.split(',').map(|c| c.parse().unwrap()).collect())
+        .collect();
+    assert_eq!(streamed.len(), batch.len());
+    for (a, b) in batch.iter().zip(&streamed) {
+        for (x, y) in a.iter().zip(b) {
+            assert!((x - y).abs() <= 1e-9 * (1.0 + x.abs()));
+        }
+    }
+}
+
+/// A command that must fail with `message` in stderr, writing nothing.
+fn refused(dir: &Path, args: &[&str], message: &[&str]) {
+    let before: Vec<_> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
+    let mut cmd = phasekit();
+    cmd.current_dir(dir).args(args);
+    let mut assert = cmd.assert().failure().code(1).stdout("");
+    for m in message {
+        assert = assert.stderr(predicate::str::contains(*m));
+    }
+    let _ = assert;
+    let after: Vec<_> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
+    assert_eq!(before, after, "no file written for {args:?}");
+}
+
+#[test]
+fn bad_inputs_are_refused_with_located_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let demos = synthetic::generate(3, 1);
+    let header = synthetic::COLUMNS.join(",");
+    let good = rows_of(&demos[0].frames);
+    write_csv(&d.join("good.csv"), &header, &good);
+    write_csv(&d.join("good2.csv"), &header, &rows_of(&demos[1].frames));
+    let with = |name: &str, row: usize, col: usize, cell: &str| {
+        let mut rows = good.clone();
+        rows[row][col] = cell.into();
+        write_csv(&d.join(name), &header, &rows);
+    };
+    with("text.csv", 3, 1, "abc");
+    with("inf.csv", 5, 4, "inf");
+    with("nan.csv", 6, 2, "NaN");
+    let mut ragged = good.clone();
+    ragged[7].pop();
+    write_csv(&d.join("ragged.csv"), &header, &ragged);
+    write_csv(
+        &d.join("dup.csv"),
+        "p1_wrist_x,p1_wrist_y,p1_wrist_x,p2_wrist_x,p2_wrist_y,p2_wrist_z",
+        &good,
+    );
+    std::fs::write(d.join("empty.csv"), "").unwrap();
+    std::fs::write(d.join("header.csv"), format!("{header}\n")).unwrap();
+    write_csv(&d.join("short.csv"), &header, &good[..3]);
+    write_csv(
+        &d.join("other.csv"),
+        "p1_wrist_x,p1_wrist_y,p1_wrist_z,p2_wrist_x,p2_wrist_y,p2_elbow_z",
+        &good,
+    );
+    let fit = |file: &str| -> Vec<String> {
+        ["fit", "--method", "hmm", "-o", "m.json", "--data", file]
+            .iter()
+            .map(|s| s.to_string())
+            .collect()
+    };
+    let run = |args: Vec<String>, msg: &[&str]| {
+        refused(d, &args.iter().map(String::as_str).collect::<Vec<_>>(), msg)
+    };
+
+    run(
+        fit("text.csv"),
+        &[
+            "text.csv",
+            "row 5",
+            "column 2",
+            "p1_wrist_y",
+            "not a number",
+            "abc",
+        ],
+    );
+    run(
+        fit("inf.csv"),
+        &["inf.csv", "row 7", "column 5", "not a finite number"],
+    );
+    run(
+        fit("nan.csv"),
+        &["nan.csv", "row 8", "column 3", "not a finite number"],
+    );
+    run(
+        fit("ragged.csv"),
+        &["ragged.csv", "row 9 has 5 cells, the header has 6"],
+    );
+    run(
+        fit("dup.csv"),
+        &["dup.csv", "`p1_wrist_x` appears twice", "columns 1 and 3"],
+    );
+    run(fit("empty.csv"), &["empty.csv", "no header row"]);
+    run(fit("header.csv"), &["header.csv", "no data rows"]);
+    run(
+        fit("short.csv"),
+        &["short.csv", "3 frames, fewer than the 4 states"],
+    );
+    let mut two = fit("good.csv");
+    two.push("other.csv".into());
+    run(
+        two,
+        &[
+            "other.csv",
+            "columns differ from those of",
+            "good.csv",
+            "p2_elbow_z",
+        ],
+    );
+    let mut unknown = fit("good.csv");
+    unknown.extend([
+        "--human".into(),
+        "nose_*".into(),
+        "--robot".into(),
+        "p2_*".into(),
+    ]);
+    run(
+        unknown,
+        &["good.csv", "no column matches `nose_*`", "p1_wrist_x"],
+    );
+    run(fit("missing.csv"), &["missing.csv", "no such file"]);
+    run(
+        [
+            "fit", "--method", "nope", "-o", "m.json", "--data", "good.csv",
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .collect(),
+        &["unknown preset `nope`"],
+    );
+
+    // Model files: corrupted, foreign, of another version.
+    phasekit()
+        .current_dir(d)
+        .args([
+            "fit",
+            "--method",
+            "hmm",
+            "-o",
+            "model.json",
+            "--data",
+            "good.csv",
+            "good2.csv",
+        ])
+        .assert()
+        .success();
+    let text = std::fs::read_to_string(d.join("model.json")).unwrap();
+    std::fs::write(d.join("truncated.json"), &text[..text.len() / 2]).unwrap();
+    std::fs::write(
+        d.join("foreign.json"),
+        r#"{"name": "something else", "weights": [1, 2]}"#,
+    )
+    .unwrap();
+    std::fs::write(
+        d.join("v2.json"),
+        text.replacen("\"version\": 1", "\"version\": 2", 1),
+    )
+    .unwrap();
+    std::fs::write(
+        d.join("broken.json"),
+        text.replacen("\"kind\": \"hmm\"", "\"kind\": \"hmmm\"", 1),
+    )
+    .unwrap();
+    let predict = |model: &str| -> Vec<String> {
+        [
+            "predict", "--model", model, "--data", "good.csv", "-o", "out.csv",
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .collect()
+    };
+    run(
+        predict("truncated.json"),
+        &["truncated.json", "not a phasekit model file", "truncated"],
+    );
+    run(
+        predict("foreign.json"),
+        &["foreign.json", "not a phasekit model file"],
+    );
+    run(
+        predict("v2.json"),
+        &["v2.json", "version 2 is not supported", "reads version 1"],
+    );
+    run(
+        predict("broken.json"),
+        &["broken.json", "corrupted model file"],
+    );
+    run(
+        predict("good.csv"),
+        &["good.csv", "not a phasekit model file"],
+    );
+    // Predicting a file without the model's human columns.
+    write_csv(
+        &d.join("robotonly.csv"),
+        "a,b,c",
+        &[vec!["1".into(), "2".into(), "3".into()]],
+    );
+    run(
+        [
+            "predict",
+            "--model",
+            "model.json",
+            "--data",
+            "robotonly.csv",
+            "-o",
+            "out.csv",
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .collect(),
+        &["robotonly.csv", "needs the human's column `p1_wrist_x`"],
+    );
+    // Usage errors exit with 2.
+    phasekit()
+        .args(["fit", "--velocity", "sideways", "--data", "x.csv"])
+        .assert()
+        .failure()
+        .code(2);
+}
+
+#[test]
+fn demo_runs_and_writes_three_pictures() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("demo");
+    phasekit()
+        .args(["demo", "--train", "8", "--test", "2", "-o"])
+        .arg(&out)
+        .assert()
+        .success()
+        .stdout(
+            predicate::str::contains("| constant mean pose |")
+                .and(predicate::str::contains("| hmm | 4 |"))
+                .and(predicate::str::contains("Next:")),
+        );
+    for svg in ["segmentation.svg", "prediction.svg", "states.svg"] {
+        let text = std::fs::read_to_string(out.join(svg)).unwrap();
+        assert!(
+            text.starts_with("<svg") && text.trim_end().ends_with("</svg>"),
+            "{svg} is an SVG"
+        );
+    }
+    ModelFile::load(&out.join("tsc-hmm.json")).unwrap();
+}
+
+#[test]
+fn plots_are_written() {
+    let (dir, data) = dataset();
+    let model = dir.path().join("m.json");
+    fit(&data, TSC, &model);
+    let test = data.join("test_00.csv");
+    for kind in ["segmentation", "prediction"] {
+        let svg = dir.path().join(format!("{kind}.svg"));
+        phasekit()
+            .args(["plot", kind, "--model"])
+            .arg(&model)
+            .arg("--data")
+            .arg(&test)
+            .arg("-o")
+            .arg(&svg)
+            .assert()
+            .success();
+        assert!(std::fs::read_to_string(&svg).unwrap().contains("<svg"));
+    }
+    let svg = dir.path().join("states.svg");
+    phasekit()
+        .args([
+            "plot",
+            "states",
+            "--x",
+            "p1_wrist_x",
+            "--y",
+            "p1_wrist_y",
+            "--model",
+        ])
+        .arg(&model)
+        .arg("--data")
+        .arg(&data)
+        .arg("-o")
+        .arg(&svg)
+        .assert()
+        .success();
+    let text = std::fs::read_to_string(&svg).unwrap();
+    assert!(text.contains("transition cluster 0") && text.contains("state 3"));
+    phasekit()
+        .args(["plot", "states", "--x", "nope", "--model"])
+        .arg(&model)
+        .arg("--data")
+        .arg(&data)
+        .arg("-o")
+        .arg(dir.path().join("x.svg"))
+        .assert()
+        .failure()
+        .stderr(predicate::str::contains("no feature `nope`"));
+    assert!(!dir.path().join("x.svg").exists());
+}
+
+#[test]
+fn every_command_has_help_with_examples() {
+    for cmd in [
+        &["fit"][..],
+        &["segment"],
+        &["predict"],
+        &["stream"],
+        &["evaluate"],
+        &["plot"],
+        &["demo"],
+        &["plot", "states"],
+        &["plot", "segmentation"],
+        &["plot", "prediction"],
+    ] {
+        phasekit()
+            .args(cmd)
+            .arg("--help")
+            .assert()
+            .success()
+            .stdout(predicate::str::contains("Example"));
+    }
+    phasekit()
+        .arg("--help")
+        .assert()
+        .success()
+        .stdout(predicate::str::contains("phasekit demo"));
+}
