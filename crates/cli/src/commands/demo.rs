@@ -145,7 +145,7 @@ pub fn run(a: &DemoArgs) -> Result<()> {
     let frames: usize = train.iter().map(Table::n_rows).sum();
     let _ = writeln!(
         out,
-        "phasekit demo: {} generated handshake-like interactions (idle → reach → shake → retract; human hand p1_wrist_xyz,\nrobot hand p2_wrist_xyz, metres); {} to train ({frames} frames), {} to test; seed {}.\n",
+        "phasekit demo: {} generated handshake-like interactions (idle → reach → shake → retract → rest; human hand p1_wrist_xyz,\nrobot hand p2_wrist_xyz, metres); {} to train ({frames} frames), {} to test; seed {}.\n",
         a.train + a.test,
         a.train,
         a.test,
@@ -187,7 +187,7 @@ pub fn run(a: &DemoArgs) -> Result<()> {
     }
     let _ = writeln!(
         out,
-        "\nMSE: squared error of the robot's hand position per frame, mean over the {} test demonstrations' frames, predicted\ncausally from the human's hand alone. Boundaries: the 3 true phase changes of each test demonstration; distance in\nframes to the nearest transition frame found (TSC) and to the nearest change of Viterbi state.",
+        "\nMSE: squared error of the robot's hand position per frame, mean over the {} test demonstrations' frames, predicted\ncausally from the human's hand alone. Boundaries: the 4 true phase changes of each test demonstration; distance in\nframes to the nearest transition frame found (TSC) and to the nearest change of Viterbi state.",
         a.test
     );
     // Plots with the TSC-HMM.

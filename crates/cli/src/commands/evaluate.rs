@@ -32,6 +32,12 @@ pub struct ResultRow {
     pub paired_won: Option<f64>,
     /// Seeds in the comparison.
     pub paired_seeds: Option<usize>,
+    /// Second method compared with (the second one given), if any.
+    pub second_reference: Option<String>,
+    /// Mean over paired seeds of (MSE − MSE_second) / MSE_second.
+    pub paired_change_second: Option<f64>,
+    /// Fraction of paired seeds where this method's MSE is lower than the second method's.
+    pub paired_won_second: Option<f64>,
 }
 
 /// How the experiment was run, for the JSON output.
@@ -82,7 +88,7 @@ fn metric_text(spec: &FeatureSpec, p: &Protocol) -> String {
          scaled by unit_scale² = {}², averaged over all frames of all test demonstrations of an action \
          ({}² for data in metres with unit_scale 100); RMSE = √MSE per seed; mean ± population std over seeds. \
          Seed s trains on a random subset ({} training demonstrations, drawn with ChaCha8 from seed s). \
-         paired_change = mean over seeds of (MSE − MSE_reference) / MSE_reference; paired_won = fraction of seeds with a lower MSE. \
+         paired_change = mean over seeds of (MSE − MSE_reference) / MSE_reference; paired_won = fraction of seeds with a lower MSE; the same against the second method in the *_second fields. \
          constant-mean predicts the mean robot position of all training demonstrations at every frame.",
         spec.robot.join(", "),
         p.unit_scale,
@@ -105,8 +111,9 @@ fn pm(m: f64, s: f64, seeds: usize) -> String {
 pub fn markdown(r: &Report) -> String {
     let u = unit(r.protocol.protocol.unit_scale);
     let mut s = format!(
-        "| action | method | states | MSE ({u}²) | RMSE ({u}) | seeds | failures | fit (s) | predict (µs/frame) | Δ MSE vs {0} | seeds won |\n|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
-        r.protocol.methods.first().map_or("first", |m| m.as_str())
+        "| action | method | states | MSE ({u}²) | RMSE ({u}) | seeds | failures | fit (s) | predict (µs/frame) | Δ MSE vs {0} | seeds won | Δ MSE vs {1} | seeds won |\n|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+        r.protocol.methods.first().map_or("first", |m| m.as_str()),
+        r.protocol.methods.get(1).map_or("second", |m| m.as_str())
     );
     for x in &r.results {
         let row = &x.row;
@@ -117,14 +124,21 @@ pub fn markdown(r: &Report) -> String {
             ),
             _ => ("–".into(), "–".into()),
         };
+        let (change2, won2) = match (x.paired_change_second, x.paired_won_second) {
+            (Some(c), Some(w)) if x.second_reference.as_deref() != Some(row.method.as_str()) => (
+                format!("{:+.1} %", 100.0 * c),
+                format!("{:.0} %", 100.0 * w),
+            ),
+            _ => ("–".into(), "–".into()),
+        };
         if x.baseline {
             s.push_str(&format!(
-                "| {} | {} | – | {:.2} | {:.2} | – | – | – | – | – | – |\n",
+                "| {} | {} | – | {:.2} | {:.2} | – | – | – | – | – | – | – | – |\n",
                 row.action, row.method, row.mse_mean, row.rmse_mean
             ));
         } else {
             s.push_str(&format!(
-                "| {} | {} | {} | {} | {} | {} | {} | {:.3} | {:.1} | {} | {} |\n",
+                "| {} | {} | {} | {} | {} | {} | {} | {:.3} | {:.1} | {} | {} | {} | {} |\n",
                 row.action,
                 row.method,
                 row.states,
@@ -135,7 +149,9 @@ pub fn markdown(r: &Report) -> String {
                 row.fit_seconds,
                 row.predict_us_per_frame,
                 change,
-                won
+                won,
+                change2,
+                won2
             ));
         }
     }
@@ -230,9 +246,14 @@ pub fn evaluate(
         let rows = evaluate_action(action, spec, methods, protocol, &|| bar.inc(1))
             .map_err(CliError::new)?;
         let reference = rows.first().cloned();
+        let second = rows.get(1).cloned();
         for row in rows {
             let cmp = reference.as_ref().and_then(|b| paired(&row, b));
+            let cmp2 = second.as_ref().and_then(|b| paired(&row, b));
             results.push(ResultRow {
+                second_reference: second.as_ref().map(|b| b.method.clone()),
+                paired_change_second: cmp2.map(|c| c.0),
+                paired_won_second: cmp2.map(|c| c.1),
                 reference: reference.as_ref().map(|b| b.method.clone()),
                 paired_change: cmp.map(|c| c.0),
                 paired_won: cmp.map(|c| c.1),
@@ -249,6 +270,9 @@ pub fn evaluate(
             paired_change: None,
             paired_won: None,
             paired_seeds: None,
+            second_reference: None,
+            paired_change_second: None,
+            paired_won_second: None,
         });
     }
     bar.finish_and_clear();
