@@ -57,7 +57,9 @@ fn peak(c: &mut Criterion) {
     let mut group = c.benchmark_group("peak");
     group.sample_size(10);
     group.throughput(Throughput::Elements(2 * (n as u64).pow(3)));
-    group.bench_function("dgemm_1024", |bch| bch.iter(|| a.mul_to(black_box(&b), &mut out)));
+    group.bench_function("dgemm_1024", |bch| {
+        bch.iter(|| a.mul_to(black_box(&b), &mut out))
+    });
     group.finish();
 }
 

@@ -12,6 +12,8 @@
 //!                                 250 frames: time and peak resident memory
 //! bench_compare threads [REPS]    workload 2 on 1 and on 2 threads: time per
 //!                                 iteration, log-likelihoods and a parameter hash
+//! bench_compare breakdown [FILTER] where one Baum-Welch iteration spends its time
+//! bench_compare kernels           CPU time of the emission hot paths on one sequence
 //! ```
 //!
 //! Every timing runs on one thread unless said (`BaumWelch::threads(1)`,
@@ -44,11 +46,17 @@ fn median(mut v: Vec<f64>) -> f64 {
 /// Runs `f` at least `min_reps` times and until `budget` seconds have passed
 /// (at most `max_reps`); returns the median wall seconds and the median CPU
 /// seconds (whole process) of one call, and the count.
-fn time_median(min_reps: usize, max_reps: usize, budget: f64, mut f: impl FnMut()) -> (f64, f64, usize) {
+fn time_median(
+    min_reps: usize,
+    max_reps: usize,
+    budget: f64,
+    mut f: impl FnMut(),
+) -> (f64, f64, usize) {
     let clock = Instant::now();
     let mut wall = Vec::new();
     let mut cpu = Vec::new();
-    while wall.len() < min_reps || (clock.elapsed().as_secs_f64() < budget && wall.len() < max_reps) {
+    while wall.len() < min_reps || (clock.elapsed().as_secs_f64() < budget && wall.len() < max_reps)
+    {
         let t0 = Instant::now();
         let c0 = process_cpu_seconds();
         f();
@@ -271,8 +279,11 @@ fn one_iteration(
 
 fn scaling(frames: usize) {
     let w = generated_workload(8, 12, frames, (frames / 250).max(1), 7);
-    let data_mb = (w.data.total_frames() * w.dim() * 8) as f64 / 1e6;
-    // Reset the peak-RSS counter so that it covers the iteration only, not the generation.
+    let data_mib = (w.data.total_frames() * w.dim() * 8) as f64 / 1048576.0;
+    // Give the generator's freed memory back to the system, then reset the
+    // peak-RSS counter so that it covers the iteration only.
+    // SAFETY: malloc_trim only releases free heap memory.
+    unsafe { libc::malloc_trim(0) };
     let _ = std::fs::write("/proc/self/clear_refs", "5");
     let rss_before = status_kb("VmRSS:");
     let pool = rayon::ThreadPoolBuilder::new()
@@ -286,7 +297,7 @@ fn scaling(frames: usize) {
     black_box(next);
     let hwm = status_kb("VmHWM:");
     println!(
-        "{{\"frames\": {}, \"seconds\": {secs:.6}, \"ns_per_frame\": {:.2}, \"data_mb\": {data_mb:.1}, \"rss_before_mb\": {:.1}, \"peak_rss_mb\": {:.1}, \"log_likelihood\": {ll}}}",
+        "{{\"frames\": {}, \"seconds\": {secs:.6}, \"ns_per_frame\": {:.2}, \"data_mib\": {data_mib:.1}, \"rss_before_mib\": {:.1}, \"peak_rss_mib\": {:.1}, \"log_likelihood\": {ll}}}",
         w.data.total_frames(),
         secs * 1e9 / w.data.total_frames() as f64,
         rss_before as f64 / 1024.0,
@@ -300,26 +311,29 @@ fn threads(reps: usize) {
         for n in [1usize, 2] {
             let mut last = None;
             let mut times = Vec::new();
+            let mut cpus = Vec::new();
             for _ in 0..reps {
                 let t0 = Instant::now();
+                let c0 = process_cpu_seconds();
                 last = Some(fit_hmm(&w, n));
+                cpus.push((process_cpu_seconds() - c0) / w.n_iter as f64);
                 times.push(t0.elapsed().as_secs_f64() / w.n_iter as f64);
             }
             let f = last.unwrap();
             let ll = f.report.log_likelihood.clone();
-            out.push((n, median(times), ll, hmm_hash(&f.model)));
+            out.push((n, median(times), median(cpus), ll, hmm_hash(&f.model)));
         }
         let identical = out[0]
-            .2
+            .3
             .iter()
-            .zip(&out[1].2)
+            .zip(&out[1].3)
             .all(|(a, b)| a.to_bits() == b.to_bits())
-            && out[0].3 == out[1].3;
-        for (n, t, ll, hash) in &out {
+            && out[0].4 == out[1].4;
+        for (n, t, c, ll, hash) in &out {
             println!(
-                "{:<16} threads={n} per_iter={:.4}s final_ll={:.17e} param_hash={hash}",
+                "{:<16} threads={n} per_iter={t:.4}s (cpu {c:.4}s, {:.2} cores busy) final_ll={:.17e} param_hash={hash}",
                 w.name,
-                t,
+                c / t,
                 ll.last().unwrap()
             );
         }
@@ -327,6 +341,135 @@ fn threads(reps: usize) {
             "{:<16} speed-up(2 vs 1)={:.2}x bit-identical={identical}",
             w.name,
             out[0].1 / out[1].1
+        );
+    }
+}
+
+fn breakdown(filter: &str) {
+    use phasekit::emission::Emission;
+    let mut ws: Vec<HmmWorkload> = Vec::new();
+    for (c, k) in [
+        (Columns::AllJoints, 8),
+        (Columns::AllJoints, 15),
+        (Columns::Wrists, 8),
+        (Columns::Wrists, 15),
+    ] {
+        if let Some(w) = paper_workload(c, k) {
+            ws.push(w);
+        }
+    }
+    if "gen".contains(filter) || filter.starts_with("gen") {
+        ws.extend(generated_workloads());
+    }
+    println!("| workload | log-densities | forward-backward | statistics | M-step | sum (ms) | forward-backward share |");
+    println!("|---|---|---|---|---|---|---|");
+    for w in ws.iter().filter(|w| w.name.contains(filter)) {
+        let h = &w.init;
+        let e = h.emission();
+        let best = |f: &mut dyn FnMut()| -> f64 {
+            (0..5)
+                .map(|_| {
+                    let c0 = process_cpu_seconds();
+                    f();
+                    process_cpu_seconds() - c0
+                })
+                .fold(f64::INFINITY, f64::min)
+                * 1e3
+        };
+        let ld = best(&mut || {
+            for s in w.data.iter() {
+                black_box(e.log_density(s).unwrap());
+            }
+        });
+        let post = best(&mut || {
+            for s in w.data.iter() {
+                black_box(h.posteriors(s).unwrap());
+            }
+        });
+        let gammas: Vec<Vec<f64>> = w
+            .data
+            .iter()
+            .map(|s| h.posteriors(s).unwrap().gamma)
+            .collect();
+        let acc = best(&mut || {
+            let mut st = e.new_stats();
+            for (s, g) in w.data.iter().zip(&gammas) {
+                e.accumulate(s, g, &mut st).unwrap();
+            }
+            black_box(st);
+        });
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .unwrap();
+        let stats = pool.install(|| h.expected_statistics(&w.data).unwrap());
+        let reg = w.reg();
+        let m = best(&mut || {
+            black_box(h.maximise(&stats, Update::default(), &reg).unwrap());
+        });
+        let fb = post - ld;
+        let total = post + acc + m;
+        println!(
+            "| {} | {ld:.2} | {fb:.2} | {acc:.2} | {m:.2} | {total:.2} | {:.0}% |",
+            w.name,
+            100.0 * fb / total
+        );
+    }
+}
+
+/// CPU nanoseconds of one online HMM-GMR step (the model of `benches/gmr.rs`:
+/// 7 states, 12-D joint, 6 inputs, 6 outputs), best of 20 batches of 100k steps.
+fn online() {
+    use phasekit::gmr::HmmRegression;
+    use rand::SeedableRng;
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+    let (s, d, n_in) = (7, 12, 6);
+    let emission = random_gaussian(s, d, 2.0, &mut rng);
+    let mut transition = vec![0.1 / (s - 1) as f64; s * s];
+    for i in 0..s {
+        transition[i * s + i] = 0.9;
+    }
+    let mut start = vec![0.0; s];
+    start[0] = 1.0;
+    let hmm = Hmm::new(start, transition, emission).unwrap();
+    let input: Vec<usize> = (0..n_in).collect();
+    let output: Vec<usize> = (n_in..d).collect();
+    let gmr = HmmRegression::new(&hmm, &input, &output).unwrap();
+    let (joint, _) = hmm.sample(1000, &mut rng).unwrap();
+    let xs: Vec<f64> = joint
+        .chunks_exact(d)
+        .flat_map(|f| f[..n_in].to_vec())
+        .collect();
+    for with_cov in [false, true] {
+        let mut online = gmr.online();
+        let mut t = 0;
+        let best = (0..20)
+            .map(|_| {
+                let c0 = process_cpu_seconds();
+                for _ in 0..100_000 {
+                    if t == 1000 {
+                        t = 0;
+                        online.reset();
+                    }
+                    let x = &xs[t * n_in..(t + 1) * n_in];
+                    let y = if with_cov {
+                        online.step_with_covariance(x)
+                    } else {
+                        online.step(x)
+                    };
+                    black_box(y.unwrap()[0]);
+                    t += 1;
+                }
+                (process_cpu_seconds() - c0) / 100_000.0 * 1e9
+            })
+            .fold(f64::INFINITY, f64::min);
+        println!(
+            "online step ({}): {best:.0} ns",
+            if with_cov {
+                "mean and covariance"
+            } else {
+                "mean"
+            }
         );
     }
 }
@@ -341,7 +484,9 @@ fn kernels() {
         let t = 250;
         let x: Vec<f64> = (0..t * d).map(|_| rng.random_range(-3.0..3.0)).collect();
         let frames = Frames::new(&x, d).unwrap();
-        let gamma: Vec<f64> = (0..t * s).map(|_| rng.random_range(0.0..1.0) / s as f64).collect();
+        let gamma: Vec<f64> = (0..t * s)
+            .map(|_| rng.random_range(0.0..1.0) / s as f64)
+            .collect();
         let mut out = vec![0.0; t * s];
         // Best of 15 batches of 40 calls, in CPU time.
         let cpu = |f: &mut dyn FnMut()| {
@@ -373,6 +518,8 @@ fn main() {
     match args.get(1).map(String::as_str) {
         Some("peak") => println!("peak_gflops {:.2}", peak()),
         Some("kernels") => kernels(),
+        Some("online") => online(),
+        Some("breakdown") => breakdown(args.get(2).map(String::as_str).unwrap_or("")),
         Some("scaling") => scaling(args.get(2).and_then(|v| v.parse().ok()).expect("FRAMES")),
         Some("threads") => threads(args.get(2).and_then(|v| v.parse().ok()).unwrap_or(3)),
         Some("run") => {

@@ -363,7 +363,10 @@ pub fn em_iteration_flops(n: usize, k: usize, d: usize) -> f64 {
 /// other processes hold the CPU, which on a shared two-core machine makes
 /// timings far more reproducible.
 pub fn process_cpu_seconds() -> f64 {
-    let mut ts = libc::timespec { tv_sec: 0, tv_nsec: 0 };
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
     // SAFETY: `ts` is a valid timespec to write into.
     unsafe { libc::clock_gettime(libc::CLOCK_PROCESS_CPUTIME_ID, &mut ts) };
     ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9

@@ -81,6 +81,10 @@ pub struct Gaussian {
     /// Full/tied: packed `L⁻¹` per covariance; diagonal: `1/σ` per state and dim;
     /// spherical: `1/σ` per state.
     whiten: Vec<f64>,
+    /// Full/tied: `whiten` regrouped for one frame under every state at once:
+    /// states `8g .. 8g + 8` interleaved entry by entry (`[group][entry][lane]`,
+    /// absent states zero); see [`linalg::sq_norms_lanes`].
+    whiten_lanes: Vec<f64>,
     /// Full/tied: packed `L` per covariance; diagonal/spherical: `σ` (for sampling).
     factor: Vec<f64>,
     /// `−½ (D log 2π + log|Σ_i|)` per state.
@@ -229,6 +233,7 @@ impl Gaussian {
             means,
             covariances,
             whiten: Vec::new(),
+            whiten_lanes: Vec::new(),
             factor: Vec::new(),
             log_norm: Vec::new(),
         };
@@ -281,6 +286,7 @@ impl Gaussian {
         let (s, d) = (self.n_states, self.dim);
         let half_log_2pi = 0.5 * d as f64 * (2.0 * PI).ln();
         self.whiten.clear();
+        self.whiten_lanes.clear();
         self.factor.clear();
         self.log_norm.clear();
         match self.kind {
@@ -300,6 +306,18 @@ impl Gaussian {
                         log_dets[i]
                     };
                     self.log_norm.push(-half_log_2pi - 0.5 * ld);
+                }
+                let (pl, sl) = (packed_len(d), linalg::STATE_LANES);
+                self.whiten_lanes = vec![0.0; s.div_ceil(sl) * pl * sl];
+                for i in 0..s {
+                    let w = match self.kind {
+                        CovarianceType::Full => &self.whiten[i * pl..(i + 1) * pl],
+                        _ => &self.whiten[..pl],
+                    };
+                    let (g, l) = (i / sl, i % sl);
+                    for (e, v) in w.iter().enumerate() {
+                        self.whiten_lanes[(g * pl + e) * sl + l] = *v;
+                    }
                 }
             }
             CovarianceType::Diagonal => {
@@ -462,25 +480,68 @@ impl Gaussian {
         done
     }
 
+    /// Full/tied log-densities of one frame `x` under every state, into `out`
+    /// (length `S`): the states go as the lanes of [`linalg::sq_norms_lanes`],
+    /// each lane doing exactly the arithmetic of [`Gaussian::log_density_one`].
+    #[inline(always)]
+    fn full_one_frame(&self, x: &[f64], out: &mut [f64]) {
+        let (s, d) = (self.n_states, self.dim);
+        let (pl, sl) = (packed_len(d), linalg::STATE_LANES);
+        let mut stack = [0.0; 32 * linalg::STATE_LANES];
+        let mut heap = Vec::new();
+        let xc: &mut [f64] = if d <= 32 {
+            &mut stack[..d * sl]
+        } else {
+            heap.resize(d * sl, 0.0);
+            &mut heap
+        };
+        let mut maha = [0.0; linalg::STATE_LANES];
+        for g in 0..s.div_ceil(sl) {
+            for l in 0..sl {
+                let i = g * sl + l;
+                if i < s {
+                    let mu = &self.means[i * d..(i + 1) * d];
+                    for k in 0..d {
+                        xc[k * sl + l] = x[k] - mu[k];
+                    }
+                } else {
+                    for k in 0..d {
+                        xc[k * sl + l] = 0.0;
+                    }
+                }
+            }
+            let wl = &self.whiten_lanes[g * pl * sl..(g + 1) * pl * sl];
+            linalg::sq_norms_lanes(wl, d, xc, &mut maha);
+            for (l, m) in maha.iter().enumerate() {
+                let i = g * sl + l;
+                if i < s {
+                    out[i] = self.log_norm[i] - 0.5 * m;
+                }
+            }
+        }
+    }
+
     /// The full/tied part of [`Emission::accumulate`]: for every state `i`,
     /// `n_i += Σ_t w_ti`, `s_i += Σ_t w_ti (x_t − c_i)` and the lower triangle of
     /// `Q_i += Σ_t w_ti (x_t − c_i)(x_t − c_i)ᵀ`.
     ///
     /// Frames go by chunks of [`ACC_CHUNK`], transposed once (`D × chunk`);
     /// per state the centred frames and their weighted copy are formed and
-    /// `Q_i` is computed by 4 × 2 tiles of dot products over the frames
+    /// `Q_i` is computed by 4 × 3 tiles of dot products over the frames
     /// ([`linalg::dot_tile`], a fixed number of interleaved partial sums, so
     /// that the result does not depend on the SIMD width). Zero-weight frames
     /// add exact zeros; they are left out of the range (`lo`/`hi`) only.
     #[inline(always)]
     fn accumulate_full(&self, frames: Frames<'_>, weights: &[f64], stats: &mut GaussianStats) {
         let (s, d) = (self.n_states, self.dim);
-        let dp = d.next_multiple_of(4);
+        // Rows padded for whole 4 × 3 tiles.
+        let dp = d.next_multiple_of(4).max(d.next_multiple_of(3)) + 3;
         let t_len = frames.len();
         let data = frames.as_slice();
         let cap = ACC_CHUNK.min(t_len.next_multiple_of(AL));
         let mut xt = vec![0.0; d * cap];
-        // Rows d..dp stay zero: the padding of the 4 × 2 tiles.
+        let mut xz = vec![0.0; d * cap];
+        // Rows d..dp are zero: the padding of the tiles.
         let mut dt = vec![0.0; dp * cap];
         let mut at = vec![0.0; dp * cap];
         let mut w = vec![0.0; cap];
@@ -508,40 +569,59 @@ impl Gaussian {
                 if zeros == m {
                     continue;
                 }
-                w[m..mp].fill(0.0);
-                stats.weight[i] += linalg::lane_sum::<AL>(&w[..mp]);
                 let lo = &mut stats.lo[i * d..(i + 1) * d];
                 let hi = &mut stats.hi[i * d..(i + 1) * d];
-                if zeros == 0 {
+                // The frames with non-zero weight, transposed: all of the chunk,
+                // or (when some weights are exactly zero) a compacted copy.
+                let (src, wv, mm) = if zeros == 0 {
                     for k in 0..d {
                         lo[k] = lo[k].min(chunk_lo[k]);
                         hi[k] = hi[k].max(chunk_hi[k]);
                     }
+                    (&xt[..d * mp], &mut w[..], m)
                 } else {
-                    for k in 0..d {
-                        let row = &xt[k * mp..k * mp + m];
-                        for (v, wj) in row.iter().zip(&w[..m]) {
-                            if *wj != 0.0 {
-                                lo[k] = lo[k].min(*v);
-                                hi[k] = hi[k].max(*v);
+                    let mm = m - zeros;
+                    let mmp = mm.next_multiple_of(AL);
+                    let mut jj = 0;
+                    for j in 0..m {
+                        if w[j] != 0.0 {
+                            w[jj] = w[j];
+                            for k in 0..d {
+                                xz[k * mmp + jj] = xt[k * mp + j];
                             }
+                            jj += 1;
                         }
                     }
-                }
+                    for k in 0..d {
+                        let row = &xz[k * mmp..k * mmp + mm];
+                        lo[k] = row.iter().fold(lo[k], |a, b| a.min(*b));
+                        hi[k] = row.iter().fold(hi[k], |a, b| a.max(*b));
+                    }
+                    (&xz[..d * mmp], &mut w[..], mm)
+                };
+                let mp = mm.next_multiple_of(AL);
+                wv[mm..mp].fill(0.0);
+                stats.weight[i] += linalg::lane_sum::<AL>(&wv[..mp]);
                 let c = &stats.shift[i * d..(i + 1) * d];
                 let sum = &mut stats.sum[i * d..(i + 1) * d];
                 for k in 0..d {
-                    let ck = c[k];
-                    let src = &xt[k * mp..(k + 1) * mp];
                     let drow = &mut dt[k * mp..(k + 1) * mp];
                     let arow = &mut at[k * mp..(k + 1) * mp];
                     // Padding frames (weight 0) enter as exact zeros.
-                    sum[k] += linalg::centre_weight(src, ck, &w[..mp], drow, arow);
-                    drow[m..].fill(0.0);
+                    sum[k] += linalg::centre_weight(
+                        &src[k * mp..(k + 1) * mp],
+                        c[k],
+                        &wv[..mp],
+                        drow,
+                        arow,
+                    );
+                    drow[mm..].fill(0.0);
                 }
+                dt[d * mp..dp * mp].fill(0.0);
+                at[d * mp..dp * mp].fill(0.0);
                 let q = &mut stats.sum_sq[i * d * d..(i + 1) * d * d];
                 for r0 in (0..d).step_by(4) {
-                    for c0 in (0..=r0 + 3).step_by(2).take_while(|c| *c < d) {
+                    for c0 in (0..=r0 + 3).step_by(3).take_while(|c| *c < d) {
                         let tile = linalg::dot_tile(&at, &dt, mp, r0, c0);
                         for (u, row) in tile.iter().enumerate() {
                             let r = r0 + u;
@@ -708,7 +788,7 @@ impl Gaussian {
 }
 
 /// Frames per chunk of the full-covariance accumulation (keeps its scratch in L2).
-const ACC_CHUNK: usize = 256;
+const ACC_CHUNK: usize = 128;
 
 /// Interleaved partial sums of the accumulation (a property of the
 /// algorithm, not of the SIMD width, so results are the same on every CPU).
@@ -737,6 +817,13 @@ unsafe fn full_blocks_avx2_fma(g: &Gaussian, data: &[f64], out: &mut [f64]) -> u
     g.full_blocks(data, out)
 }
 
+/// [`Gaussian::full_one_frame`] compiled for AVX2 and FMA.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn full_one_frame_avx2_fma(g: &Gaussian, x: &[f64], out: &mut [f64]) {
+    g.full_one_frame(x, out)
+}
+
 /// [`Gaussian::accumulate_full`] compiled for AVX2 and FMA.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
@@ -746,6 +833,11 @@ unsafe fn accumulate_full_avx2_fma(
     weights: &[f64],
     stats: &mut GaussianStats,
 ) {
+    // Posteriors far below 1e-300 (which forward-backward produces on
+    // well-separated data) would make the weighted products subnormal, and
+    // every subnormal operand costs a ~100-cycle microcode assist. Flushing
+    // them to zero changes only terms below 2.2e-308.
+    let _ftz = linalg::FlushSubnormals::new();
     g.accumulate_full(frames, weights, stats)
 }
 
@@ -908,7 +1000,21 @@ impl Emission for Gaussian {
             }
             CovarianceType::Diagonal | CovarianceType::Spherical => 0,
         };
+        let full = matches!(self.kind, CovarianceType::Full | CovarianceType::Tied);
         for (x, row) in frames.iter().zip(out.chunks_exact_mut(s)).skip(blocked) {
+            if full {
+                // A single frame (e.g. the online filter): all states at once.
+                #[cfg(target_arch = "x86_64")]
+                {
+                    if linalg::has_avx2_fma() {
+                        // SAFETY: the CPU supports AVX2 and FMA (checked above).
+                        unsafe { full_one_frame_avx2_fma(self, x, row) };
+                        continue;
+                    }
+                }
+                self.full_one_frame(x, row);
+                continue;
+            }
             for (i, o) in row.iter_mut().enumerate() {
                 *o = self.log_density_one(i, x);
             }
@@ -1215,5 +1321,160 @@ impl Emission for Gaussian {
                 CovarianceType::Spherical => s,
                 CovarianceType::Tied => d * (d + 1) / 2,
             }
+    }
+}
+
+#[cfg(test)]
+mod blocked_paths {
+    //! The batched full-covariance kernels against the one-frame form and
+    //! against their own portable (non-AVX) build.
+    use super::*;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    fn random_model(kind: CovarianceType, s: usize, d: usize, rng: &mut ChaCha8Rng) -> Gaussian {
+        let means: Vec<f64> = (0..s * d).map(|_| rng.random_range(-2.0..2.0)).collect();
+        let n_cov = if kind == CovarianceType::Tied { 1 } else { s };
+        let covs: Vec<f64> = (0..n_cov)
+            .flat_map(|_| {
+                let a = DMatrix::from_fn(d, d, |_, _| rng.random_range(-1.0..1.0));
+                let m = &a * a.transpose() / d as f64 + DMatrix::identity(d, d) * 0.2;
+                let m = (&m + m.transpose()) * 0.5;
+                (0..d * d)
+                    .map(move |k| m[(k / d, k % d)])
+                    .collect::<Vec<_>>()
+            })
+            .collect();
+        Gaussian::new(kind, d, means, covs).unwrap()
+    }
+
+    fn bits(v: &[f64]) -> Vec<u64> {
+        v.iter().map(|x| x.to_bits()).collect()
+    }
+
+    #[test]
+    fn log_density_blocks_equal_frame_by_frame_and_any_split() {
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        for kind in [CovarianceType::Full, CovarianceType::Tied] {
+            for d in [1, 2, 3, 5, 12, 17, 36] {
+                let s = 3;
+                let g = random_model(kind, s, d, &mut rng);
+                let t = 53;
+                let x: Vec<f64> = (0..t * d).map(|_| rng.random_range(-4.0..4.0)).collect();
+                let frames = Frames::new(&x, d).unwrap();
+                let all = g.log_density(frames).unwrap();
+                let one: Vec<f64> = x
+                    .chunks_exact(d)
+                    .flat_map(|f| (0..s).map(|i| g.log_density_one(i, f)).collect::<Vec<_>>())
+                    .collect();
+                assert_eq!(
+                    bits(&all),
+                    bits(&one),
+                    "{kind:?} D={d}: blocks vs one frame"
+                );
+                let mut split = Vec::new();
+                for r in [0..1, 1..3, 3..20, 20..37, 37..53] {
+                    split.extend(g.log_density(frames.slice(r)).unwrap());
+                }
+                assert_eq!(bits(&all), bits(&split), "{kind:?} D={d}: split calls");
+                // The portable build of the same kernel.
+                let mut portable = vec![0.0; t * s];
+                let done = g.full_blocks(&x, &mut portable);
+                for (tt, f) in x.chunks_exact(d).enumerate().skip(done) {
+                    for i in 0..s {
+                        portable[tt * s + i] = g.log_density_one(i, f);
+                    }
+                }
+                assert_eq!(
+                    bits(&all),
+                    bits(&portable),
+                    "{kind:?} D={d}: portable build"
+                );
+                // And the textbook value.
+                for (tt, f) in x.chunks_exact(d).enumerate() {
+                    for i in 0..s {
+                        let cov = g.covariance(i);
+                        let diff = nalgebra::DVector::from_iterator(
+                            d,
+                            f.iter().zip(g.mean(i)).map(|(a, b)| a - b),
+                        );
+                        let chol = nalgebra::Cholesky::new(cov.clone()).unwrap();
+                        let maha = diff.dot(&chol.solve(&diff));
+                        let want =
+                            -0.5 * (d as f64 * (2.0 * PI).ln() + cov.determinant().ln() + maha);
+                        let got = all[tt * s + i];
+                        assert!(
+                            (got - want).abs() <= 1e-9 * (1.0 + want.abs()),
+                            "{got} vs {want}"
+                        );
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn accumulate_blocks_match_formulas_and_portable_build() {
+        let mut rng = ChaCha8Rng::seed_from_u64(6);
+        for kind in [CovarianceType::Full, CovarianceType::Tied] {
+            for d in [1, 2, 3, 5, 12, 17, 36] {
+                for zero_share in [0.0, 0.3, 0.97] {
+                    let s = 3;
+                    let g = random_model(kind, s, d, &mut rng);
+                    let t = 301;
+                    let x: Vec<f64> = (0..t * d).map(|_| rng.random_range(-4.0..4.0)).collect();
+                    let w: Vec<f64> = (0..t * s)
+                        .map(|_| {
+                            if rng.random_range(0.0..1.0) < zero_share {
+                                0.0
+                            } else {
+                                rng.random_range(0.0..1.0)
+                            }
+                        })
+                        .collect();
+                    let frames = Frames::new(&x, d).unwrap();
+                    let mut st = g.new_stats();
+                    g.accumulate(frames, &w, &mut st).unwrap();
+                    let mut portable = g.new_stats();
+                    g.accumulate_full(frames, &w, &mut portable);
+                    assert_eq!(st, portable, "{kind:?} D={d}: portable build");
+                    for i in 0..s {
+                        let c = &st.shift[i * d..(i + 1) * d];
+                        let (mut n, mut sum, mut q) = (0.0, vec![0.0; d], vec![0.0; d * d]);
+                        let (mut lo, mut hi) = (vec![f64::INFINITY; d], vec![f64::NEG_INFINITY; d]);
+                        for (tt, f) in x.chunks_exact(d).enumerate() {
+                            let wt = w[tt * s + i];
+                            if wt == 0.0 {
+                                continue;
+                            }
+                            n += wt;
+                            for r in 0..d {
+                                lo[r] = lo[r].min(f[r]);
+                                hi[r] = hi[r].max(f[r]);
+                                sum[r] += wt * (f[r] - c[r]);
+                                for cc in 0..=r {
+                                    q[r * d + cc] += wt * (f[r] - c[r]) * (f[cc] - c[cc]);
+                                }
+                            }
+                        }
+                        let close = |a: f64, b: f64| (a - b).abs() <= 1e-11 * (1.0 + b.abs());
+                        assert!(close(st.weight[i], n));
+                        assert_eq!(&st.lo[i * d..(i + 1) * d], &lo[..], "{kind:?} D={d} lo");
+                        assert_eq!(&st.hi[i * d..(i + 1) * d], &hi[..], "{kind:?} D={d} hi");
+                        for r in 0..d {
+                            assert!(close(st.sum[i * d + r], sum[r]));
+                            for cc in 0..d {
+                                let got = st.sum_sq[i * d * d + r * d + cc];
+                                let want = if cc <= r { q[r * d + cc] } else { 0.0 };
+                                assert!(
+                                    close(got, want),
+                                    "{kind:?} D={d} Q[{r},{cc}] {got} vs {want}"
+                                );
+                            }
+                        }
+                    }
+                }
+            }
+        }
     }
 }

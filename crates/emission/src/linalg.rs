@@ -81,6 +81,48 @@ pub fn packed_lower_sq_norms(packed: &[f64], d: usize, xt: &[f64], out: &mut [f6
     sq_norms::<LANES>(packed, d, xt, out)
 }
 
+/// While alive, the current thread flushes subnormal results to zero and
+/// treats subnormal operands as zero (MXCSR FTZ and DAZ); the previous mode
+/// is restored on drop (also when unwinding). Only values below
+/// `f64::MIN_POSITIVE` (2.2e-308) are affected.
+#[cfg(target_arch = "x86_64")]
+pub struct FlushSubnormals(u32);
+
+#[cfg(target_arch = "x86_64")]
+impl FlushSubnormals {
+    /// Sets FTZ and DAZ, remembering the previous MXCSR.
+    #[inline]
+    pub fn new() -> Self {
+        let mut old: u32 = 0;
+        // SAFETY: stmxcsr stores the 32-bit MXCSR into `old`; ldmxcsr loads a
+        // valid MXCSR (the current one with FTZ (bit 15) and DAZ (bit 6) set).
+        unsafe {
+            std::arch::asm!("stmxcsr [{}]", in(reg) &mut old, options(nostack, preserves_flags));
+            let new = old | 0x8040;
+            std::arch::asm!("ldmxcsr [{}]", in(reg) &new, options(nostack, preserves_flags));
+        }
+        FlushSubnormals(old)
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+impl Default for FlushSubnormals {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+impl Drop for FlushSubnormals {
+    #[inline]
+    fn drop(&mut self) {
+        // SAFETY: restores the MXCSR saved by `new`.
+        unsafe {
+            std::arch::asm!("ldmxcsr [{}]", in(reg) &self.0, options(nostack, preserves_flags));
+        }
+    }
+}
+
 /// True when the CPU has AVX2 and FMA (cached by the standard library).
 #[cfg(target_arch = "x86_64")]
 #[inline]
@@ -212,6 +254,59 @@ pub fn sq_norms<const L: usize>(packed: &[f64], d: usize, xt: &[f64], out: &mut 
     *out = acc;
 }
 
+/// States evaluated together by [`sq_norms_lanes`].
+pub const STATE_LANES: usize = 8;
+
+/// `out[l] = ‖W_l v_l‖²` for [`STATE_LANES`] different packed lower
+/// triangles at once (one frame under several states): `wl[e·8 + l]` is entry
+/// `e` of `W_l`, `xt[k·8 + l]` entry `k` of `v_l`. Every lane does exactly the
+/// arithmetic of [`packed_lower_sq_norm`] (and of one lane of [`sq_norms`]).
+#[inline(always)]
+pub fn sq_norms_lanes(wl: &[f64], d: usize, xt: &[f64], out: &mut [f64; STATE_LANES]) {
+    const L: usize = STATE_LANES;
+    assert!(wl.len() >= packed_len(d) * L && xt.len() >= d * L);
+    let lane = |v: &[f64], k: usize| -> [f64; L] { v[k * L..(k + 1) * L].try_into().unwrap() };
+    let mut acc = [0.0; L];
+    let mut start = 0;
+    let mut r = 0;
+    while r + 1 < d {
+        let mut z0 = [0.0; L];
+        let mut z1 = [0.0; L];
+        for k in 0..=r {
+            let x = lane(xt, k);
+            let a = lane(wl, start + k);
+            let b = lane(wl, start + r + 1 + k);
+            for l in 0..L {
+                z0[l] = a[l].mul_add(x[l], z0[l]);
+                z1[l] = b[l].mul_add(x[l], z1[l]);
+            }
+        }
+        let x = lane(xt, r + 1);
+        let b = lane(wl, start + 2 * r + 2);
+        for l in 0..L {
+            z1[l] = b[l].mul_add(x[l], z1[l]);
+            acc[l] = z0[l].mul_add(z0[l], acc[l]);
+            acc[l] = z1[l].mul_add(z1[l], acc[l]);
+        }
+        start += 2 * r + 3;
+        r += 2;
+    }
+    if r < d {
+        let mut z = [0.0; L];
+        for k in 0..=r {
+            let x = lane(xt, k);
+            let a = lane(wl, start + k);
+            for l in 0..L {
+                z[l] = a[l].mul_add(x[l], z[l]);
+            }
+        }
+        for l in 0..L {
+            acc[l] = z[l].mul_add(z[l], acc[l]);
+        }
+    }
+    *out = acc;
+}
+
 /// `dst[j] = src[j] − m` (elementwise, so every code path agrees exactly).
 #[inline(always)]
 pub fn sub_scalar(dst: &mut [f64], src: &[f64], m: f64) {
@@ -325,22 +420,23 @@ pub fn reduce_lanes<const L: usize>(mut acc: [f64; L]) -> f64 {
     acc[0]
 }
 
-/// A 4 × 2 tile of dot products over `m` frames,
+/// A 4 × 3 tile of dot products over `m` frames,
 /// `out[u][v] = Σ_j a[(r0+u)·m + j] · b[(c0+v)·m + j]`, for rows of `a` and
 /// `b` stored with stride `m` (a multiple of [`DOT_LANES`]): fused
 /// multiply-adds into [`DOT_LANES`] interleaved partial sums per entry,
-/// combined by [`lane_sum`]'s rule. The AVX2 form (one register per entry)
-/// and the portable form do the same arithmetic, lane by lane.
+/// combined by [`lane_sum`]'s rule. The AVX2 form (one register per entry,
+/// twelve accumulators) and the portable form do the same arithmetic, lane by lane.
 #[inline(always)]
-pub fn dot_tile(a: &[f64], b: &[f64], m: usize, r0: usize, c0: usize) -> [[f64; 2]; 4] {
-    assert!(m % DOT_LANES == 0 && a.len() >= (r0 + 4) * m && b.len() >= (c0 + 2) * m);
-    let rows: [&[f64]; 6] = [
+pub fn dot_tile(a: &[f64], b: &[f64], m: usize, r0: usize, c0: usize) -> [[f64; 3]; 4] {
+    assert!(m % DOT_LANES == 0 && a.len() >= (r0 + 4) * m && b.len() >= (c0 + 3) * m);
+    let rows: [&[f64]; 7] = [
         &a[r0 * m..(r0 + 1) * m],
         &a[(r0 + 1) * m..(r0 + 2) * m],
         &a[(r0 + 2) * m..(r0 + 3) * m],
         &a[(r0 + 3) * m..(r0 + 4) * m],
         &b[c0 * m..(c0 + 1) * m],
         &b[(c0 + 1) * m..(c0 + 2) * m],
+        &b[(c0 + 2) * m..(c0 + 3) * m],
     ];
     #[cfg(target_arch = "x86_64")]
     {
@@ -351,10 +447,10 @@ pub fn dot_tile(a: &[f64], b: &[f64], m: usize, r0: usize, c0: usize) -> [[f64; 
             return std::array::from_fn(|u| std::array::from_fn(|v| reduce_lanes(acc[u][v])));
         }
     }
-    let mut acc = [[[0.0; DOT_LANES]; 2]; 4];
+    let mut acc = [[[0.0; DOT_LANES]; 3]; 4];
     for j in (0..m).step_by(DOT_LANES) {
         for u in 0..4 {
-            for v in 0..2 {
+            for v in 0..3 {
                 for l in 0..DOT_LANES {
                     acc[u][v][l] = rows[u][j + l].mul_add(rows[4 + v][j + l], acc[u][v][l]);
                 }
@@ -370,25 +466,27 @@ pub const DOT_LANES: usize = 4;
 #[cfg(target_arch = "x86_64")]
 #[inline]
 #[target_feature(enable = "avx2,fma")]
-unsafe fn dot_tile_avx2_fma(rows: [&[f64]; 6], m: usize) -> [[[f64; 4]; 2]; 4] {
+unsafe fn dot_tile_avx2_fma(rows: [&[f64]; 7], m: usize) -> [[[f64; 4]; 3]; 4] {
     use std::arch::x86_64::*;
-    let p: [*const f64; 6] = std::array::from_fn(|k| rows[k].as_ptr());
-    let mut c = [_mm256_setzero_pd(); 8];
+    let p: [*const f64; 7] = std::array::from_fn(|k| rows[k].as_ptr());
+    let mut c = [_mm256_setzero_pd(); 12];
     let mut j = 0;
     while j < m {
         let b0 = _mm256_loadu_pd(p[4].add(j));
         let b1 = _mm256_loadu_pd(p[5].add(j));
+        let b2 = _mm256_loadu_pd(p[6].add(j));
         for u in 0..4 {
             let x = _mm256_loadu_pd(p[u].add(j));
-            c[2 * u] = _mm256_fmadd_pd(x, b0, c[2 * u]);
-            c[2 * u + 1] = _mm256_fmadd_pd(x, b1, c[2 * u + 1]);
+            c[3 * u] = _mm256_fmadd_pd(x, b0, c[3 * u]);
+            c[3 * u + 1] = _mm256_fmadd_pd(x, b1, c[3 * u + 1]);
+            c[3 * u + 2] = _mm256_fmadd_pd(x, b2, c[3 * u + 2]);
         }
         j += 4;
     }
-    let mut out = [[[0.0; 4]; 2]; 4];
+    let mut out = [[[0.0; 4]; 3]; 4];
     for u in 0..4 {
-        for v in 0..2 {
-            _mm256_storeu_pd(out[u][v].as_mut_ptr(), c[2 * u + v]);
+        for v in 0..3 {
+            _mm256_storeu_pd(out[u][v].as_mut_ptr(), c[3 * u + v]);
         }
     }
     out

@@ -41,6 +41,29 @@ pub struct MixtureStatistics<S> {
     pub n_frames: usize,
 }
 
+/// Turns a row of joint log-densities `log π_k + log c_k(x_t)` into
+/// responsibilities and returns `log p(x_t)`: one exponential per component
+/// (`e_k = exp(v_k − max)`, `r_k = e_k / Σ e`) and one logarithm, instead of
+/// the log-sum-exp followed by a second pass of exponentials. Rows whose
+/// maximum is not finite go through [`normalise_log_row`].
+#[inline]
+fn responsibilities_in_place(row: &mut [f64]) -> f64 {
+    let m = row.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    if !m.is_finite() {
+        return normalise_log_row(row);
+    }
+    let mut total = 0.0;
+    for v in row.iter_mut() {
+        *v = (*v - m).exp();
+        total += *v;
+    }
+    let inv = 1.0 / total;
+    for v in row.iter_mut() {
+        *v *= inv;
+    }
+    m + total.ln()
+}
+
 impl<E: Emission> MixtureModel<E> {
     fn accumulate_chunk(&self, frames: Frames<'_>) -> Result<MixtureStatistics<E::Stats>> {
         let k = self.n_components();
@@ -49,7 +72,7 @@ impl<E: Emission> MixtureModel<E> {
         let mut ll = 0.0;
         let mut counts = vec![0.0; k];
         for row in r.chunks_exact_mut(k) {
-            ll += normalise_log_row(row);
+            ll += responsibilities_in_place(row);
             for (c, v) in counts.iter_mut().zip(row.iter()) {
                 *c += v;
             }

@@ -97,10 +97,18 @@ impl Conditional {
     /// Writes the conditional mean `μ_o + R (x_i − μ_i)` into `out`.
     #[inline]
     pub fn mean_into(&self, x_in: &[f64], out: &mut [f64]) {
-        for (o, row) in out.iter_mut().zip(self.regression.chunks_exact(self.n_in)) {
+        // Input-major: the O running sums are independent, so each step of `i`
+        // is O independent multiply-adds instead of one long dependency chain
+        // per output. Every output still adds its terms in increasing `i`,
+        // exactly as a row-by-row dot product would.
+        let n_in = self.n_in;
+        for o in out.iter_mut().take(self.n_out) {
             *o = 0.0;
-            for ((r, x), m) in row.iter().zip(x_in).zip(&self.mean_in) {
-                *o += r * (x - m);
+        }
+        for (i, (x, m)) in x_in.iter().zip(&self.mean_in).enumerate() {
+            let dx = x - m;
+            for (o, row) in out.iter_mut().zip(self.regression.chunks_exact(n_in)) {
+                *o += row[i] * dx;
             }
         }
         for (o, m) in out.iter_mut().zip(&self.mean_out) {
