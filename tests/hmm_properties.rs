@@ -822,3 +822,135 @@ fn fit_is_bit_identical_on_1_and_4_threads() {
         bits(four.model.emission().covariances_raw())
     );
 }
+
+// ---------------------------------------------------------------------------
+// Long sequences at extreme scales: the hybrid linear/log recursions
+// ---------------------------------------------------------------------------
+
+/// Log-space forward-backward with every frame's messages re-centred:
+/// `(log p, γ, Σ_t ξ_t)`, the obvious `O(T S²)` version with `S²` exponentials
+/// per frame.
+fn log_space_reference(
+    start: &[f64],
+    trans: &[f64],
+    log_b: &[f64],
+    s: usize,
+) -> (f64, Vec<f64>, Vec<f64>) {
+    let t_len = log_b.len() / s;
+    let ln = |p: f64| if p > 0.0 { p.ln() } else { f64::NEG_INFINITY };
+    let la_tr: Vec<f64> = trans.iter().map(|a| ln(*a)).collect();
+    let mut la = vec![0.0; t_len * s];
+    let mut lb = vec![0.0; t_len * s];
+    let mut ll = 0.0;
+    let mut terms = vec![0.0; s];
+    for t in 0..t_len {
+        for j in 0..s {
+            la[t * s + j] = if t == 0 {
+                ln(start[j])
+            } else {
+                for i in 0..s {
+                    terms[i] = la[(t - 1) * s + i] + la_tr[i * s + j];
+                }
+                lse(&terms)
+            } + log_b[t * s + j];
+        }
+        let c = lse(&la[t * s..(t + 1) * s]);
+        ll += c;
+        la[t * s..(t + 1) * s].iter_mut().for_each(|v| *v -= c);
+    }
+    for t in (0..t_len - 1).rev() {
+        for i in 0..s {
+            for j in 0..s {
+                terms[j] = la_tr[i * s + j] + log_b[(t + 1) * s + j] + lb[(t + 1) * s + j];
+            }
+            lb[t * s + i] = lse(&terms);
+        }
+        let c = lse(&lb[t * s..(t + 1) * s]);
+        lb[t * s..(t + 1) * s].iter_mut().for_each(|v| *v -= c);
+    }
+    let mut gamma = vec![0.0; t_len * s];
+    for t in 0..t_len {
+        let row: Vec<f64> = (0..s).map(|i| la[t * s + i] + lb[t * s + i]).collect();
+        let z = lse(&row);
+        for i in 0..s {
+            gamma[t * s + i] = (row[i] - z).exp();
+        }
+    }
+    let mut xi = vec![0.0; s * s];
+    let mut all = vec![0.0; s * s];
+    for t in 0..t_len - 1 {
+        for i in 0..s {
+            for j in 0..s {
+                all[i * s + j] =
+                    la[t * s + i] + la_tr[i * s + j] + log_b[(t + 1) * s + j] + lb[(t + 1) * s + j];
+            }
+        }
+        let z = lse(&all);
+        for (x, v) in xi.iter_mut().zip(&all) {
+            *x += (v - z).exp();
+        }
+    }
+    (ll, gamma, xi)
+}
+
+proptest! {
+    #![proptest_config(config(300))]
+
+    /// Sequences of up to 150 frames that visit well-separated 1-D states
+    /// (log-density gaps of hundreds to thousands of nats), with glitch frames
+    /// and transitions that are structurally zero or as small as 1e-300: the
+    /// forward and backward passes switch between their linear and log forms
+    /// many times, and must still agree with the plain log-space recursion.
+    #[test]
+    fn long_sequences_at_extreme_scales_match_log_space(s in 2usize..=6, t_len in 20usize..=150, spread in 2.0f64..80.0, tiny in prop::bool::ANY, seed in any::<u64>()) {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let (start, mut trans) = random_chain(&mut rng, s);
+        if tiny {
+            // Replace some positive off-diagonal entries by 1e-307..1e-200.
+            for i in 0..s {
+                for j in 0..s {
+                    if i != j && trans[i * s + j] > 0.0 && rng.random_bool(0.4) {
+                        let small = 10f64.powf(-rng.random_range(200.0..307.0));
+                        let moved = trans[i * s + j] - small;
+                        trans[i * s + j] = small;
+                        trans[i * s + i] += moved;
+                    }
+                }
+            }
+        }
+        let means: Vec<f64> = (0..s).map(|k| k as f64 * spread).collect();
+        let vars: Vec<f64> = (0..s).map(|_| rng.random_range(0.2..2.0)).collect();
+        let g = Gaussian::diagonal(1, means.clone(), vars.clone()).unwrap();
+        let hmm = Hmm::new(start, trans, g).unwrap();
+        // A path that dwells in a state and jumps (a glitch frame 5% of the time).
+        let mut state = rng.random_range(0..s);
+        let mut x = Vec::with_capacity(t_len);
+        for _ in 0..t_len {
+            if rng.random_bool(0.1) {
+                state = rng.random_range(0..s);
+            }
+            let k = if rng.random_bool(0.05) { rng.random_range(0..s) } else { state };
+            x.push(means[k] + vars[k].sqrt() * rng.random_range(-2.0..2.0));
+        }
+        let log_b: Vec<f64> = x
+            .iter()
+            .flat_map(|v| (0..s).map(|k| -0.5 * ((v - means[k]).powi(2) / vars[k] + (2.0 * std::f64::consts::PI * vars[k]).ln())).collect::<Vec<_>>())
+            .collect();
+        let (ll, gamma, xi) = log_space_reference(hmm.start(), hmm.transition(), &log_b, s);
+        let seq = Frames::new(&x, 1).unwrap();
+        match hmm.posteriors(seq) {
+            Err(HmmError::ImpossibleSequence { .. }) => prop_assert!(ll == f64::NEG_INFINITY, "refused a possible sequence (log p = {ll})"),
+            Err(e) => prop_assert!(false, "unexpected error {e}"),
+            Ok(post) => {
+                prop_assert!(ll.is_finite());
+                close_log("log-likelihood", post.log_likelihood, ll)?;
+                close_abs("γ", &post.gamma, &gamma, 1e-9)?;
+                close_abs("Σξ", &post.expected_transitions, &xi, 1e-9 * t_len as f64)?;
+                let fwd = hmm.forward(seq).unwrap();
+                close_log("forward log-likelihood", fwd.log_likelihood(), ll)?;
+                let mut filter = ForwardFilter::new(hmm.clone());
+                check_filter(&mut filter, seq, &fwd)?;
+            }
+        }
+    }
+}

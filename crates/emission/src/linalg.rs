@@ -514,7 +514,25 @@ pub fn log_sum_exp(x: &[f64]) -> f64 {
     if m == f64::INFINITY {
         return m;
     }
-    m + x.iter().map(|v| (v - m).exp()).sum::<f64>().ln()
+    m + x.iter().map(|v| exp_or_zero(v - m)).sum::<f64>().ln()
+}
+
+/// Below this, `exp` is exactly `0.0` in IEEE double precision (the smallest
+/// subnormal is `e^{−744.44}`), so skipping the call changes no bit.
+pub const EXP_UNDERFLOW: f64 = -746.0;
+
+/// `e^x`, without calling `exp` where the result is exactly zero anyway.
+///
+/// In the log-space recursions of well-separated models most terms are far
+/// below the largest one; skipping their `exp` calls makes those passes
+/// several times faster with bit-identical results.
+#[inline]
+pub fn exp_or_zero(x: f64) -> f64 {
+    if x < EXP_UNDERFLOW {
+        0.0
+    } else {
+        x.exp()
+    }
 }
 
 /// Cholesky factor of a symmetric matrix, or `None` when it is not positive

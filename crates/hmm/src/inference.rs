@@ -17,7 +17,7 @@
 
 use crate::error::{HmmError, Result};
 use crate::model::Hmm;
-use phasekit_emission::linalg::log_sum_exp;
+use phasekit_emission::linalg::{exp_or_zero, log_sum_exp};
 use phasekit_emission::{Emission, Frames};
 
 /// Result of the forward pass on one sequence.
@@ -153,6 +153,7 @@ impl ForwardCore {
     }
 
     /// `out_j = pred_j e^{log b_j − m}` over the possible states; returns their sum.
+    #[inline(always)]
     fn scaled(&self, log_b: &[f64], m: f64, out: &mut [f64]) -> f64 {
         let mut c = 0.0;
         for (j, o) in out.iter_mut().enumerate() {
@@ -170,6 +171,24 @@ impl ForwardCore {
     /// `h_t = p(z_t | x_{1:t})` into `h` and returns `log c_t = log p(x_t | x_{1:t−1})`.
     /// An impossible frame returns `−inf`, zeroes `h` and leaves the recursion unchanged.
     pub(crate) fn step<E: Emission>(&mut self, hmm: &Hmm<E>, log_b: &[f64], h: &mut [f64]) -> f64 {
+        #[cfg(target_arch = "x86_64")]
+        if avx2() {
+            // SAFETY: the CPU supports AVX2 (checked at run time).
+            return unsafe { self.step_avx2(hmm, log_b, h) };
+        }
+        self.step_body(hmm, log_b, h)
+    }
+
+    /// [`ForwardCore::step`] compiled for AVX2: the same operations in the same
+    /// order (Rust never contracts to FMA), so the results are bit-identical.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn step_avx2<E: Emission>(&mut self, hmm: &Hmm<E>, log_b: &[f64], h: &mut [f64]) -> f64 {
+        self.step_body(hmm, log_b, h)
+    }
+
+    #[inline(always)]
+    fn step_body<E: Emission>(&mut self, hmm: &Hmm<E>, log_b: &[f64], h: &mut [f64]) -> f64 {
         let s = self.pred.len();
         let mut any = false;
         for j in 0..s {
@@ -214,23 +233,27 @@ impl ForwardCore {
             m + c.ln()
         };
 
-        // The prediction for the next frame: linear if that is exact, else in log space.
+        // The prediction for the next frame, linear where that is exact. A
+        // column whose linear value is below SAFE may have lost precision (or
+        // underflowed) although the state is reachable: only such columns are
+        // recomputed in log space, and the prediction is then carried in log
+        // form (exact columns as `ln p_j`).
         let a = &hmm.transition;
-        self.reach_next.fill(false);
-        for i in 0..s {
-            if self.alive[i] {
-                for (r, aij) in self.reach_next.iter_mut().zip(&a[i * s..(i + 1) * s]) {
-                    *r |= *aij > 0.0;
+        predict(h, a, &mut self.pred_next);
+        let mut any_inexact = false;
+        for j in 0..s {
+            if self.pred_next[j] >= SAFE {
+                self.reach_next[j] = true;
+            } else {
+                let mut r = false;
+                for i in 0..s {
+                    r |= self.alive[i] && a[i * s + j] > 0.0;
                 }
+                self.reach_next[j] = r;
+                any_inexact |= r;
             }
         }
-        predict(h, a, &mut self.pred_next);
-        let exact = self
-            .reach_next
-            .iter()
-            .zip(&self.pred_next)
-            .all(|(r, p)| !*r || *p >= SAFE);
-        if exact {
+        if !any_inexact {
             std::mem::swap(&mut self.pred, &mut self.pred_next);
             self.log_mode = false;
         } else {
@@ -246,13 +269,15 @@ impl ForwardCore {
             }
             let la = &hmm.log_transition;
             for j in 0..s {
-                self.log_pred[j] = if self.reach_next[j] {
+                self.log_pred[j] = if !self.reach_next[j] {
+                    f64::NEG_INFINITY
+                } else if self.pred_next[j] >= SAFE {
+                    self.pred_next[j].ln()
+                } else {
                     for i in 0..s {
                         self.terms[i] = self.log_h[i] + la[i * s + j];
                     }
                     log_sum_exp(&self.terms)
-                } else {
-                    f64::NEG_INFINITY
                 };
             }
             self.log_mode = true;
@@ -260,6 +285,13 @@ impl ForwardCore {
         std::mem::swap(&mut self.reachable, &mut self.reach_next);
         lc
     }
+}
+
+/// Whether the CPU has AVX2 (detected once; `std` caches the answer).
+#[cfg(target_arch = "x86_64")]
+#[inline]
+fn avx2() -> bool {
+    std::is_x86_feature_detected!("avx2")
 }
 
 /// Subtracts the log-sum-exp of `row` from every entry (if it is finite).
@@ -271,7 +303,7 @@ fn shift_to_zero(row: &mut [f64]) {
 }
 
 /// `pred_j = Σ_i h_i a_ij`.
-#[inline]
+#[inline(always)]
 pub(crate) fn predict(h: &[f64], transition: &[f64], pred: &mut [f64]) {
     let s = h.len();
     pred.fill(0.0);
@@ -415,11 +447,46 @@ impl<E: Emission> Hmm<E> {
         Ok((self.log_space_posteriors(log_b, gamma), ll))
     }
 
-    /// Per-frame normalised backward pass combined with the filtered forward
-    /// variable. `None` when linear arithmetic would not be exact (a state
-    /// that carries backward mass gets less than `SAFE`, or the forward and
-    /// backward messages barely overlap); then the log-space form is used.
+    /// Backward pass combined with the filtered forward variable.
+    ///
+    /// The backward message `β_{t+1}` is carried normalised, in linear form
+    /// while every state that can still explain the rest of the sequence holds
+    /// at least `SAFE` of it (then linear arithmetic is exact), and otherwise
+    /// in log form, where only the rows whose linear value fell below `SAFE`
+    /// are recomputed by log-sum-exp. With `u_j ∝ b_j(x_{t+1}) β_{t+1}(j)`:
+    /// `β_t(i) ∝ Σ_j a_ij u_j`, `γ_t(i) ∝ h_t(i) β_t(i)` and
+    /// `ξ_t(i,j) ∝ h_t(i) a_ij u_j`, both normalised by `Σ_i h_t(i) β_t(i)`.
+    /// `None` when that normaliser is below `SAFE` (the forward and backward
+    /// messages barely overlap); then the log-space form is used.
     fn scaled_backward_posteriors(
+        &self,
+        fwd: &Forward,
+        log_b: &[f64],
+        gamma: &mut [f64],
+    ) -> Option<Vec<f64>> {
+        #[cfg(target_arch = "x86_64")]
+        if avx2() {
+            // SAFETY: the CPU supports AVX2 (checked at run time).
+            return unsafe { self.scaled_backward_posteriors_avx2(fwd, log_b, gamma) };
+        }
+        self.scaled_backward_posteriors_body(fwd, log_b, gamma)
+    }
+
+    /// Compiled for AVX2; bit-identical to the portable build (same operations,
+    /// same order, no FMA contraction).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn scaled_backward_posteriors_avx2(
+        &self,
+        fwd: &Forward,
+        log_b: &[f64],
+        gamma: &mut [f64],
+    ) -> Option<Vec<f64>> {
+        self.scaled_backward_posteriors_body(fwd, log_b, gamma)
+    }
+
+    #[inline(always)]
+    fn scaled_backward_posteriors_body(
         &self,
         fwd: &Forward,
         log_b: &[f64],
@@ -428,15 +495,30 @@ impl<E: Emission> Hmm<E> {
         let s = self.n_states();
         let t_len = log_b.len() / s;
         let a = &self.transition;
+        let la = &self.log_transition;
+        // Aᵀ, so that `A u` is a sequence of contiguous axpys (vectorised,
+        // and summed in the same order as the row dot products).
+        let mut a_t = vec![0.0; s * s];
+        for i in 0..s {
+            for j in 0..s {
+                a_t[j * s + i] = a[i * s + j];
+            }
+        }
         let h = &fwd.filtered;
         let mut xi = vec![0.0; s * s];
-        // beta: normalised backward variable of frame t+1 (then t); alive: where it
-        // is exactly positive; u: b_j(x_{t+1}) β_{t+1}(j), normalised.
+        // beta / log_beta: the normalised backward message of frame t+1, in
+        // linear or log form; alive: where it is exactly positive; carry:
+        // alive and b_j(x_{t+1}) > 0; w: log(b_j β_j) relative to the shift of u.
         let mut beta = vec![1.0 / s as f64; s];
+        let mut log_beta = vec![0.0; s];
+        let mut log_mode = false;
         let mut alive = vec![true; s];
-        let mut alive_next = vec![false; s];
+        let mut carry = vec![false; s];
         let mut next = vec![0.0; s];
         let mut u = vec![0.0; s];
+        let mut w = vec![f64::NEG_INFINITY; s];
+        let mut terms = vec![0.0; s];
+        let mut shift = 0.0;
         let last = (t_len - 1) * s;
         let z: f64 = h[last..].iter().zip(&beta).map(|(x, y)| x * y).sum();
         for i in 0..s {
@@ -444,45 +526,68 @@ impl<E: Emission> Hmm<E> {
         }
         for t in (0..t_len - 1).rev() {
             let lb = &log_b[(t + 1) * s..(t + 2) * s];
-            let carries = |j: usize| alive[j] && lb[j] > f64::NEG_INFINITY;
-            let mut m = f64::NEG_INFINITY;
+            let mut any = false;
             for j in 0..s {
-                if carries(j) {
-                    m = m.max(lb[j]);
-                }
+                carry[j] = alive[j] && lb[j] > f64::NEG_INFINITY;
+                any |= carry[j];
             }
-            if m == f64::NEG_INFINITY {
+            if !any {
                 return None;
             }
-            let fill = |m: f64, u: &mut [f64]| -> f64 {
-                let mut total = 0.0;
+            // u_j = e^{w_j}, w_j = log b_j + log β_j − shift, max_j u_j ≈ 1.
+            if log_mode {
+                let mut m = f64::NEG_INFINITY;
                 for j in 0..s {
-                    u[j] = if carries(j) {
-                        (lb[j] - m).exp() * beta[j]
+                    w[j] = if carry[j] {
+                        lb[j] + log_beta[j]
                     } else {
-                        0.0
+                        f64::NEG_INFINITY
                     };
-                    total += u[j];
+                    m = m.max(w[j]);
                 }
-                total
-            };
-            // Every carrying state has β ≥ SAFE / S, so the sum is positive.
-            let mut total_u = fill(m, &mut u);
-            if total_u < RESCALE {
-                m += total_u.ln();
-                total_u = fill(m, &mut u);
+                for j in 0..s {
+                    w[j] -= m;
+                    u[j] = exp_or_zero(w[j]);
+                }
+            } else {
+                let mut m = f64::NEG_INFINITY;
+                for j in 0..s {
+                    if carry[j] {
+                        m = m.max(lb[j]);
+                    }
+                }
+                let fill = |m: f64, u: &mut [f64]| -> f64 {
+                    let mut total = 0.0;
+                    for j in 0..s {
+                        u[j] = if carry[j] {
+                            (lb[j] - m).exp() * beta[j]
+                        } else {
+                            0.0
+                        };
+                        total += u[j];
+                    }
+                    total
+                };
+                // Every carrying state has β ≥ SAFE / S, so the sum is positive.
+                let mut total_u = fill(m, &mut u);
+                if total_u < RESCALE {
+                    m += total_u.ln();
+                    total_u = fill(m, &mut u);
+                }
+                let inv_u = 1.0 / total_u;
+                u.iter_mut().for_each(|v| *v *= inv_u);
+                // w is only needed if some row turns out inexact (below).
+                shift = m + total_u.ln();
             }
-            let inv_u = 1.0 / total_u;
-            u.iter_mut().for_each(|v| *v *= inv_u);
-            let mut total = 0.0;
-            for i in 0..s {
-                let row = &a[i * s..(i + 1) * s];
-                next[i] = row.iter().zip(&u).map(|(x, y)| x * y).sum();
-                alive_next[i] = (0..s).any(|j| row[j] > 0.0 && carries(j));
-                if alive_next[i] && !(next[i] >= SAFE) {
-                    return None;
+            // next = A u
+            next.fill(0.0);
+            for (j, uj) in u.iter().enumerate() {
+                if *uj == 0.0 {
+                    continue;
                 }
-                total += next[i];
+                for (n, aji) in next.iter_mut().zip(&a_t[j * s..(j + 1) * s]) {
+                    *n += aji * uj;
+                }
             }
             // ξ_t(i,j) ∝ h_t(i) a_ij u_j; its normaliser is Σ_i h_t(i) next_i.
             let ht = &h[t * s..(t + 1) * s];
@@ -496,15 +601,64 @@ impl<E: Emission> Hmm<E> {
                 if hi == 0.0 {
                     continue;
                 }
-                for j in 0..s {
-                    xi[i * s + j] += hi * a[i * s + j] * u[j];
+                let row = &a[i * s..(i + 1) * s];
+                let out = &mut xi[i * s..(i + 1) * s];
+                for ((x, aij), uj) in out.iter_mut().zip(row).zip(&u) {
+                    *x += hi * aij * uj;
                 }
+                gamma[t * s + i] = hi * next[i];
             }
             for i in 0..s {
-                gamma[t * s + i] = ht[i] * next[i] * inv;
-                beta[i] = next[i] / total;
+                if ht[i] == 0.0 {
+                    gamma[t * s + i] = 0.0;
+                }
             }
-            std::mem::swap(&mut alive, &mut alive_next);
+            // β_t: linear if every structurally positive entry is ≥ SAFE.
+            let mut any_inexact = false;
+            for i in 0..s {
+                if next[i] >= SAFE {
+                    alive[i] = true;
+                } else {
+                    let mut r = false;
+                    for j in 0..s {
+                        r |= carry[j] && a[i * s + j] > 0.0;
+                    }
+                    alive[i] = r;
+                    any_inexact |= r;
+                }
+            }
+            if !any_inexact {
+                let total: f64 = next.iter().sum();
+                let inv_t = 1.0 / total;
+                for (bi, ni) in beta.iter_mut().zip(&next) {
+                    *bi = ni * inv_t;
+                }
+                log_mode = false;
+            } else {
+                if !log_mode {
+                    // Exact: every carrying state had β_j ≥ SAFE / S.
+                    for j in 0..s {
+                        w[j] = if carry[j] {
+                            lb[j] + beta[j].ln() - shift
+                        } else {
+                            f64::NEG_INFINITY
+                        };
+                    }
+                }
+                for i in 0..s {
+                    log_beta[i] = if !alive[i] {
+                        f64::NEG_INFINITY
+                    } else if next[i] >= SAFE {
+                        next[i].ln()
+                    } else {
+                        for j in 0..s {
+                            terms[j] = la[i * s + j] + w[j];
+                        }
+                        log_sum_exp(&terms)
+                    };
+                }
+                log_mode = true;
+            }
         }
         Some(xi)
     }
@@ -540,7 +694,7 @@ impl<E: Emission> Hmm<E> {
             }
             let z = log_sum_exp(&terms);
             for (x, v) in xi.iter_mut().zip(&terms) {
-                *x += (v - z).exp();
+                *x += exp_or_zero(v - z);
             }
         }
         xi
