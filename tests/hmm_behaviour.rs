@@ -951,11 +951,14 @@ fn errors_name_the_sequence_frame_and_column() {
         .to_string();
     assert!(err.contains("sequence 1") && err.contains("empty"), "{err}");
 
-    // NaN in the data.
+    // Infinity in the data (NaN means "not observed" and is accepted).
     let mut bad = vec![vec![0.0; 8], vec![0.0; 6], vec![0.0; 10]];
-    bad[2][3 * 2 + 1] = f64::NAN;
+    bad[2][3 * 2 + 1] = f64::NEG_INFINITY;
     let err = SequenceSet::new(&bad, 2).unwrap_err().to_string();
     assert!(err.contains("sequence 2, frame 3, column 1"), "{err}");
+    bad[2][3 * 2 + 1] = f64::NAN;
+    let set = SequenceSet::new(&bad, 2).unwrap();
+    assert!(set.has_missing() && set.get(2).has_missing() && !set.get(0).has_missing());
     bad[2][3 * 2 + 1] = 0.0;
     bad[1][2 * 2] = f64::INFINITY;
     let err = SequenceSet::new(&bad, 2).unwrap_err().to_string();
@@ -995,7 +998,9 @@ fn errors_name_the_sequence_frame_and_column() {
     assert!(err.to_string().contains("expected 2, found 3"), "{err}");
     assert!(hmm.filter().step(&[0.0, 1.0, 2.0]).is_err());
     assert!(hmm.filter().step(&[]).is_err());
-    assert!(hmm.filter().step(&[0.0, f64::NAN]).is_err());
+    assert!(hmm.filter().step(&[0.0, f64::INFINITY]).is_err());
+    // NaN is "not observed": the filter runs on the observed dimension.
+    assert!(hmm.filter().step(&[0.0, f64::NAN]).is_ok());
     let data1 = SequenceSet::new(&[vec![0.0, 1.0, 2.0, 3.0, 4.0, 5.0]], 1).unwrap();
     assert!(hmm.log_likelihood_all(&data1).is_err());
 

@@ -156,7 +156,8 @@ impl Emission for Categorical {
     fn check_frames(&self, frames: Frames<'_>) -> Result<()> {
         check_dim(1, frames.dim())?;
         for (t, x) in frames.as_slice().iter().enumerate() {
-            if self.symbol(*x).is_none() {
+            // NaN: the symbol was not observed.
+            if !x.is_nan() && self.symbol(*x).is_none() {
                 return Err(EmissionError::InvalidValue {
                     frame: t,
                     column: 0,
@@ -180,6 +181,8 @@ impl Emission for Categorical {
                         *o = self.log_probabilities[i * k + sym];
                     }
                 }
+                // Not observed: the marginal over all symbols is 1.
+                None if x.is_nan() => row.fill(0.0),
                 None => row.fill(f64::NEG_INFINITY),
             }
         }
@@ -211,6 +214,14 @@ impl Emission for Categorical {
             if let Some(sym) = self.symbol(*x) {
                 for i in 0..s {
                     stats.counts[i * k + sym] += weights[t * s + i];
+                }
+            } else if x.is_nan() {
+                // Not observed: expected counts `w · p_i(j)` under the current model.
+                for i in 0..s {
+                    let w = weights[t * s + i];
+                    for j in 0..k {
+                        stats.counts[i * k + j] += w * self.probabilities[i * k + j];
+                    }
                 }
             }
         }

@@ -3,6 +3,13 @@
 //! A sequence of `T` frames of dimension `D` is stored row-major: frame `t`
 //! occupies `data[t*D .. (t+1)*D]`. The same memory is a column-major `D × T`
 //! matrix, which is how the linear algebra sees it, without a copy.
+//!
+//! A NaN value means "not observed" (a dropped marker, an empty CSV cell).
+//! Every emission evaluates such a frame on the marginal of its observed
+//! dimensions and accumulates the expected statistics of the missing ones;
+//! a frame with nothing observed has density 1 under every state. Infinity is
+//! always an error. Whether a block has any missing value is found once, at
+//! construction, so that complete data take the plain code paths unchanged.
 
 use crate::error::{EmissionError, Result};
 
@@ -14,12 +21,15 @@ use crate::error::{EmissionError, Result};
 pub struct Frames<'a> {
     data: &'a [f64],
     dim: usize,
+    /// True when some value is NaN (not observed).
+    missing: bool,
 }
 
 impl<'a> Frames<'a> {
-    /// Wraps `data` as frames of dimension `dim`; every value must be finite.
+    /// Wraps `data` as frames of dimension `dim`. A NaN value means "not
+    /// observed"; every other value must be finite.
     ///
-    /// Errors name the frame and column of the first bad value.
+    /// Errors name the frame and column of the first infinite value.
     pub fn new(data: &'a [f64], dim: usize) -> Result<Self> {
         if dim == 0 {
             return Err(EmissionError::InvalidParameter {
@@ -34,15 +44,59 @@ impl<'a> Frames<'a> {
                 found: data.len(),
             });
         }
-        if let Some(i) = data.iter().position(|v| !v.is_finite()) {
+        if let Some(i) = data.iter().position(|v| v.is_infinite()) {
             return Err(EmissionError::InvalidValue {
                 frame: i / dim,
                 column: i % dim,
                 value: data[i],
-                reason: "value is not finite",
+                reason: "value is infinite (a missing value is NaN; infinity is refused)",
             });
         }
-        Ok(Frames { data, dim })
+        Ok(Frames {
+            data,
+            dim,
+            missing: any_missing(data),
+        })
+    }
+
+    /// Like [`Frames::new`], but a NaN is refused as well (for models or steps
+    /// that need every value observed).
+    pub fn complete(data: &'a [f64], dim: usize) -> Result<Self> {
+        let frames = Self::new(data, dim)?;
+        if let Some(i) = frames
+            .missing
+            .then(|| data.iter().position(|v| v.is_nan()))
+            .flatten()
+        {
+            return Err(EmissionError::InvalidValue {
+                frame: i / dim,
+                column: i % dim,
+                value: data[i],
+                reason: "value is missing (NaN) where every value must be observed",
+            });
+        }
+        Ok(frames)
+    }
+
+    /// True when some value is NaN (not observed).
+    #[inline]
+    pub fn has_missing(&self) -> bool {
+        self.missing
+    }
+
+    /// True when frame `t` has at least one missing value.
+    #[inline]
+    pub fn frame_has_missing(&self, t: usize) -> bool {
+        self.missing && self.frame(t).iter().any(|v| v.is_nan())
+    }
+
+    /// Number of missing values (NaN) in the block.
+    pub fn missing_count(&self) -> usize {
+        if self.missing {
+            self.data.iter().filter(|v| v.is_nan()).count()
+        } else {
+            0
+        }
     }
 
     /// Number of frames.
@@ -80,13 +134,24 @@ impl<'a> Frames<'a> {
         self.data.chunks_exact(self.dim)
     }
 
-    /// Frames `range.start .. range.end` (no re-validation needed).
+    /// Frames `range.start .. range.end` (no re-validation needed; the missing
+    /// flag is recomputed for the slice only when the block has missing values).
     pub fn slice(&self, range: std::ops::Range<usize>) -> Frames<'a> {
+        let data = &self.data[range.start * self.dim..range.end * self.dim];
         Frames {
-            data: &self.data[range.start * self.dim..range.end * self.dim],
+            data,
             dim: self.dim,
+            missing: self.missing && any_missing(data),
         }
     }
+}
+
+/// True when some value is NaN.
+#[inline]
+fn any_missing(data: &[f64]) -> bool {
+    // A fold without early exit vectorises; the scan is one pass over data
+    // that every caller reads anyway.
+    data.iter().fold(false, |acc, v| acc | v.is_nan())
 }
 
 /// Many variable-length sequences of frames in one contiguous buffer.
@@ -97,15 +162,19 @@ pub struct SequenceSet {
     data: Vec<f64>,
     dim: usize,
     offsets: Vec<usize>,
+    /// Per sequence: some value is NaN (not observed).
+    missing: Vec<bool>,
 }
 
 impl SequenceSet {
-    /// Builds a set from row-major sequences, each `len_k × dim`.
+    /// Builds a set from row-major sequences, each `len_k × dim`. NaN values
+    /// mean "not observed" (see the module documentation).
     ///
     /// Errors say which sequence, frame and column is bad; empty sequences are refused.
     pub fn new<S: AsRef<[f64]>>(sequences: &[S], dim: usize) -> Result<Self> {
         let mut data = Vec::with_capacity(sequences.iter().map(|s| s.as_ref().len()).sum());
         let mut offsets = vec![0];
+        let mut missing = Vec::with_capacity(sequences.len());
         for (k, s) in sequences.iter().enumerate() {
             let s = s.as_ref();
             let frames = Frames::new(s, dim).map_err(|e| match e {
@@ -136,6 +205,7 @@ impl SequenceSet {
             }
             data.extend_from_slice(s);
             offsets.push(offsets.last().unwrap() + frames.len());
+            missing.push(frames.has_missing());
         }
         if dim == 0 {
             return Err(EmissionError::InvalidParameter {
@@ -143,7 +213,12 @@ impl SequenceSet {
                 reason: "frames must have at least one dimension".into(),
             });
         }
-        Ok(SequenceSet { data, dim, offsets })
+        Ok(SequenceSet {
+            data,
+            dim,
+            offsets,
+            missing,
+        })
     }
 
     /// One sequence stored as a single block.
@@ -181,7 +256,13 @@ impl SequenceSet {
         Frames {
             data: &self.data[self.offsets[k] * self.dim..self.offsets[k + 1] * self.dim],
             dim: self.dim,
+            missing: self.missing[k],
         }
+    }
+
+    /// True when some value of some sequence is NaN (not observed).
+    pub fn has_missing(&self) -> bool {
+        self.missing.iter().any(|m| *m)
     }
 
     /// Iterator over the sequences.
@@ -194,6 +275,7 @@ impl SequenceSet {
         Frames {
             data: &self.data,
             dim: self.dim,
+            missing: self.has_missing(),
         }
     }
 
@@ -204,10 +286,16 @@ impl SequenceSet {
         for frame in self.data.chunks_exact(self.dim) {
             data.extend(columns.iter().map(|&c| frame[c]));
         }
+        let missing = self
+            .offsets
+            .windows(2)
+            .map(|w| any_missing(&data[w[0] * columns.len()..w[1] * columns.len()]))
+            .collect();
         Ok(SequenceSet {
             data,
             dim: columns.len(),
             offsets: self.offsets.clone(),
+            missing,
         })
     }
 

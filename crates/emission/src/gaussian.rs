@@ -15,6 +15,7 @@
 
 use crate::error::{EmissionError, Result};
 use crate::linalg::{self, packed_len, packed_lower_sq_norm, LANES};
+use crate::missing::{for_each_run, observed_dims, PatternCache};
 use crate::regularization::{CovarianceRegularization, MStepEvent, MStepReport, Regularization};
 use crate::{
     check_dim, check_dims, check_len, check_state, Emission, Frames, SufficientStatistics,
@@ -641,6 +642,241 @@ impl Gaussian {
         }
     }
 
+    /// Log-densities of complete frames (no NaN) into `out` (`T × S`): blocks
+    /// of [`LANES`] frames for full/tied covariances (bit-identical to the
+    /// frame-by-frame form, which finishes a last single frame).
+    fn log_density_complete(&self, frames: Frames<'_>, out: &mut [f64]) {
+        let s = self.n_states;
+        let blocked = match self.kind {
+            // Blocks of LANES frames at once (bit-identical to the frame-by-frame
+            // form below, which finishes a last single frame).
+            CovarianceType::Full | CovarianceType::Tied => {
+                #[cfg(target_arch = "x86_64")]
+                {
+                    if linalg::has_avx2_fma() {
+                        // SAFETY: the CPU supports AVX2 and FMA (checked above).
+                        unsafe { full_blocks_avx2_fma(self, frames.as_slice(), out) }
+                    } else {
+                        self.full_blocks(frames.as_slice(), out)
+                    }
+                }
+                #[cfg(not(target_arch = "x86_64"))]
+                {
+                    self.full_blocks(frames.as_slice(), out)
+                }
+            }
+            CovarianceType::Diagonal | CovarianceType::Spherical => 0,
+        };
+        let full = matches!(self.kind, CovarianceType::Full | CovarianceType::Tied);
+        for (x, row) in frames.iter().zip(out.chunks_exact_mut(s)).skip(blocked) {
+            if full {
+                // A single frame (e.g. the online filter): all states at once.
+                #[cfg(target_arch = "x86_64")]
+                {
+                    if linalg::has_avx2_fma() {
+                        // SAFETY: the CPU supports AVX2 and FMA (checked above).
+                        unsafe { full_one_frame_avx2_fma(self, x, row) };
+                        continue;
+                    }
+                }
+                self.full_one_frame(x, row);
+                continue;
+            }
+            for (i, o) in row.iter_mut().enumerate() {
+                *o = self.log_density_one(i, x);
+            }
+        }
+    }
+
+    /// Log-densities of frames with missing values: runs of complete frames go
+    /// through [`Gaussian::log_density_complete`]; an incomplete frame is
+    /// evaluated on the marginal of its observed dims `o`,
+    /// `log N(x_o; μ_o, Σ_oo)` (the full-covariance sub-block, not a diagonal
+    /// shortcut), and a frame with nothing observed has `log b_i = 0`.
+    fn log_density_missing(&self, frames: Frames<'_>, out: &mut [f64]) -> Result<()> {
+        let s = self.n_states;
+        let mut marginals: PatternCache<Gaussian> = PatternCache::new();
+        let mut obs = Vec::with_capacity(self.dim);
+        let mut xo = Vec::with_capacity(self.dim);
+        for_each_run(frames, |range, complete| {
+            let rows = &mut out[range.start * s..range.end * s];
+            if complete {
+                self.log_density_complete(frames.slice(range), rows);
+                return Ok(());
+            }
+            let x = frames.frame(range.start);
+            observed_dims(x, &mut obs);
+            if obs.is_empty() {
+                rows.fill(0.0);
+                return Ok(());
+            }
+            let m = marginals.get_or_try_insert(x, || self.marginal(&obs))?;
+            xo.clear();
+            xo.extend(obs.iter().map(|&k| x[k]));
+            for (i, o) in rows.iter_mut().enumerate() {
+                *o = m.log_density_one(i, &xo);
+            }
+            Ok(())
+        })
+    }
+
+    /// For a placeholder template, anchors the reference point of every state
+    /// that has no weight yet at its first weighted frame (dimension by
+    /// dimension at the first observed value, when values are missing).
+    fn anchor(&self, frames: Frames<'_>, weights: &[f64], stats: &mut GaussianStats) {
+        if !stats.anchor_lazily {
+            return;
+        }
+        let (s, d) = (self.n_states, self.dim);
+        for i in 0..s {
+            if stats.weight[i] != 0.0 {
+                continue;
+            }
+            let Some(t) = (0..frames.len()).find(|&t| weights[t * s + i] != 0.0) else {
+                continue;
+            };
+            let shift = &mut stats.shift[i * d..(i + 1) * d];
+            shift.copy_from_slice(frames.frame(t));
+            if frames.has_missing() {
+                for (k, c) in shift.iter_mut().enumerate() {
+                    if c.is_nan() {
+                        *c = (t..frames.len())
+                            .filter(|&u| weights[u * s + i] != 0.0)
+                            .map(|u| frames.frame(u)[k])
+                            .find(|v| !v.is_nan())
+                            .unwrap_or(0.0);
+                    }
+                }
+            }
+        }
+    }
+
+    /// [`Emission::accumulate`] for complete frames (no NaN).
+    fn accumulate_complete(&self, frames: Frames<'_>, weights: &[f64], stats: &mut GaussianStats) {
+        let (s, d) = (self.n_states, self.dim);
+        if matches!(self.kind, CovarianceType::Full | CovarianceType::Tied) {
+            #[cfg(target_arch = "x86_64")]
+            {
+                if linalg::has_avx2_fma() {
+                    // SAFETY: the CPU supports AVX2 and FMA (checked above).
+                    unsafe { accumulate_full_avx2_fma(self, frames, weights, stats) };
+                    return;
+                }
+            }
+            self.accumulate_full(frames, weights, stats);
+            return;
+        }
+        for i in 0..s {
+            let c = &stats.shift[i * d..(i + 1) * d];
+            let sum = &mut stats.sum[i * d..(i + 1) * d];
+            let lo = &mut stats.lo[i * d..(i + 1) * d];
+            let hi = &mut stats.hi[i * d..(i + 1) * d];
+            let mut n = 0.0;
+            {
+                let q = &mut stats.sum_sq[i * d..(i + 1) * d];
+                for (t, x) in frames.iter().enumerate() {
+                    let w = weights[t * s + i];
+                    if w == 0.0 {
+                        continue;
+                    }
+                    n += w;
+                    for k in 0..d {
+                        lo[k] = lo[k].min(x[k]);
+                        hi[k] = hi[k].max(x[k]);
+                        let e = x[k] - c[k];
+                        sum[k] += w * e;
+                        q[k] += w * e * e;
+                    }
+                }
+            }
+            stats.weight[i] += n;
+        }
+    }
+
+    /// [`Emission::accumulate`] with missing values: the expected sufficient
+    /// statistics of EM for Gaussians with missing data. For an incomplete
+    /// frame with observed dims `o` and missing dims `m`, under state `i`,
+    /// the missing values are replaced by their conditional mean
+    /// `x̂_m = μ_m + Σ_mo Σ_oo⁻¹ (x_o − μ_o)` and the scatter gains the
+    /// conditional covariance `Σ_mm − Σ_mo Σ_oo⁻¹ Σ_om` in its `m × m` block:
+    /// `E[(x − c)(x − c)ᵀ | x_o] = (x̂ − c)(x̂ − c)ᵀ + Cov(x | x_o)`.
+    /// For a placeholder template (whose parameters mean nothing yet) the
+    /// missing values take the reference point with no variance; the
+    /// initialisations iterate from there ([`crate::fit_weighted`]).
+    fn accumulate_missing(
+        &self,
+        frames: Frames<'_>,
+        weights: &[f64],
+        stats: &mut GaussianStats,
+    ) -> Result<()> {
+        let (s, d) = (self.n_states, self.dim);
+        let full = matches!(self.kind, CovarianceType::Full | CovarianceType::Tied);
+        let mut conditionals: PatternCache<Imputation> = PatternCache::new();
+        let mut xhat = vec![0.0; d];
+        let mut e = vec![0.0; d];
+        for_each_run(frames, |range, complete| {
+            let w = &weights[range.start * s..range.end * s];
+            if complete {
+                self.accumulate_complete(frames.slice(range), w, stats);
+                return Ok(());
+            }
+            let x = frames.frame(range.start);
+            let imp = if stats.anchor_lazily {
+                None
+            } else {
+                Some(conditionals.get_or_try_insert(x, || Imputation::new(self, x))?)
+            };
+            for (i, &wi) in w.iter().enumerate() {
+                if wi == 0.0 {
+                    continue;
+                }
+                let c = &stats.shift[i * d..(i + 1) * d];
+                match imp {
+                    Some(imp) => imp.fill(self, i, x, &mut xhat),
+                    None => {
+                        for k in 0..d {
+                            xhat[k] = if x[k].is_nan() { c[k] } else { x[k] };
+                        }
+                    }
+                }
+                for k in 0..d {
+                    e[k] = xhat[k] - c[k];
+                }
+                stats.weight[i] += wi;
+                for k in 0..d {
+                    let j = i * d + k;
+                    stats.sum[j] += wi * e[k];
+                    stats.lo[j] = stats.lo[j].min(xhat[k]);
+                    stats.hi[j] = stats.hi[j].max(xhat[k]);
+                }
+                if full {
+                    let q = &mut stats.sum_sq[i * d * d..(i + 1) * d * d];
+                    for r in 0..d {
+                        for cc in 0..=r {
+                            q[r * d + cc] += wi * e[r] * e[cc];
+                        }
+                    }
+                    if let Some(imp) = imp {
+                        imp.add_covariance(self, i, wi, |r, cc, v| q[r * d + cc] += v);
+                    }
+                } else {
+                    let q = &mut stats.sum_sq[i * d..(i + 1) * d];
+                    for k in 0..d {
+                        q[k] += wi * e[k] * e[k];
+                    }
+                    if let Some(imp) = imp {
+                        imp.add_covariance(self, i, wi, |r, cc, v| {
+                            if r == cc {
+                                q[r] += v
+                            }
+                        });
+                    }
+                }
+            }
+            Ok(())
+        })
+    }
+
     fn kept(&self, i: usize, stats: &GaussianStats, reg: &Regularization) -> bool {
         stats.weight[i] < reg.min_weight().max(f64::MIN_POSITIVE)
     }
@@ -841,6 +1077,137 @@ unsafe fn accumulate_full_avx2_fma(
     g.accumulate_full(frames, weights, stats)
 }
 
+/// The conditional distribution of the missing dims `m` given the observed
+/// dims `o` of one missing pattern, per covariance (one per state, or one
+/// shared when tied): the regression `R = Σ_mo Σ_oo⁻¹` (`|m| × |o|`, by a
+/// Cholesky solve `Σ_oo Rᵀ = Σ_om`) and the covariance `Σ_mm − R Σ_om`.
+#[derive(Debug)]
+struct Imputation {
+    obs: Vec<usize>,
+    mis: Vec<usize>,
+    /// Per covariance: `R`, row-major (empty for diagonal/spherical, where it is zero).
+    regression: Vec<Vec<f64>>,
+    /// Per covariance: the conditional covariance, `|m| × |m|` row-major
+    /// (diagonal/spherical: only its diagonal, `|m|` values).
+    covariance: Vec<Vec<f64>>,
+}
+
+impl Imputation {
+    fn new(g: &Gaussian, x: &[f64]) -> Result<Self> {
+        let d = g.dim;
+        let mut obs = Vec::with_capacity(d);
+        crate::missing::observed_dims(x, &mut obs);
+        let mis: Vec<usize> = (0..d).filter(|&k| x[k].is_nan()).collect();
+        let n_cov = if g.kind == CovarianceType::Tied {
+            1
+        } else {
+            g.n_states
+        };
+        let mut regression = Vec::with_capacity(n_cov);
+        let mut covariance = Vec::with_capacity(n_cov);
+        for j in 0..n_cov {
+            match g.kind {
+                CovarianceType::Full | CovarianceType::Tied => {
+                    let cov = g.covariance(j);
+                    let sub = |rows: &[usize], cols: &[usize]| {
+                        DMatrix::from_fn(rows.len(), cols.len(), |r, c| cov[(rows[r], cols[c])])
+                    };
+                    let s_mm = sub(&mis, &mis);
+                    if obs.is_empty() {
+                        regression.push(Vec::new());
+                        covariance.push(s_mm.transpose().as_slice().to_vec());
+                        continue;
+                    }
+                    let s_om = sub(&obs, &mis);
+                    let chol = nalgebra::Cholesky::new(sub(&obs, &obs)).ok_or_else(|| {
+                        EmissionError::NotPositiveDefinite {
+                            state: j,
+                            component: None,
+                            detail: format!(" (sub-block of the observed dims {obs:?})"),
+                        }
+                    })?;
+                    let rt = chol.solve(&s_om); // |o| × |m|: Σ_oo⁻¹ Σ_om
+                    let cond = &s_mm - rt.transpose() * &s_om;
+                    // Row-major R = (Σ_oo⁻¹ Σ_om)ᵀ: the column-major storage of `rt`.
+                    regression.push(rt.as_slice().to_vec());
+                    covariance.push(
+                        (0..mis.len() * mis.len())
+                            .map(|k| {
+                                let (r, c) = (k / mis.len(), k % mis.len());
+                                0.5 * (cond[(r, c)] + cond[(c, r)])
+                            })
+                            .collect(),
+                    );
+                }
+                CovarianceType::Diagonal => {
+                    regression.push(Vec::new());
+                    covariance.push(mis.iter().map(|&k| g.covariances[j * d + k]).collect());
+                }
+                CovarianceType::Spherical => {
+                    regression.push(Vec::new());
+                    covariance.push(vec![g.covariances[j]; mis.len()]);
+                }
+            }
+        }
+        Ok(Imputation {
+            obs,
+            mis,
+            regression,
+            covariance,
+        })
+    }
+
+    fn cov_index(&self, g: &Gaussian, state: usize) -> usize {
+        if g.kind == CovarianceType::Tied {
+            0
+        } else {
+            state
+        }
+    }
+
+    /// `x̂`: `x` with its missing values replaced by their conditional mean under `state`.
+    fn fill(&self, g: &Gaussian, state: usize, x: &[f64], xhat: &mut [f64]) {
+        let mu = g.mean(state);
+        xhat.copy_from_slice(x);
+        let r = &self.regression[self.cov_index(g, state)];
+        let no = self.obs.len();
+        for (a, &m) in self.mis.iter().enumerate() {
+            let mut v = mu[m];
+            if !r.is_empty() {
+                for (b, &o) in self.obs.iter().enumerate() {
+                    v += r[a * no + b] * (x[o] - mu[o]);
+                }
+            }
+            xhat[m] = v;
+        }
+    }
+
+    /// Calls `add(r, c, w · C_rc)` for the lower triangle (`c ≤ r`, frame
+    /// dims) of the conditional covariance `C` under `state`.
+    fn add_covariance(
+        &self,
+        g: &Gaussian,
+        state: usize,
+        w: f64,
+        mut add: impl FnMut(usize, usize, f64),
+    ) {
+        let c = &self.covariance[self.cov_index(g, state)];
+        let nm = self.mis.len();
+        if matches!(g.kind, CovarianceType::Full | CovarianceType::Tied) {
+            // `mis` is ascending, so `b ≤ a` is the lower triangle in frame dims too.
+            for a in 0..nm {
+                for b in 0..=a {
+                    add(self.mis[a], self.mis[b], w * c[a * nm + b]);
+                }
+            }
+        } else {
+            for (a, &m) in self.mis.iter().enumerate() {
+                add(m, m, w * c[a]);
+            }
+        }
+    }
+}
+
 /// Sufficient statistics of [`Gaussian`] states, about per-state reference points.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct GaussianStats {
@@ -980,45 +1347,10 @@ impl Emission for Gaussian {
         check_dim(self.dim, frames.dim())?;
         let s = self.n_states;
         check_len("log-density output buffer", frames.len() * s, out.len())?;
-        let blocked = match self.kind {
-            // Blocks of LANES frames at once (bit-identical to the frame-by-frame
-            // form below, which finishes a last single frame).
-            CovarianceType::Full | CovarianceType::Tied => {
-                #[cfg(target_arch = "x86_64")]
-                {
-                    if linalg::has_avx2_fma() {
-                        // SAFETY: the CPU supports AVX2 and FMA (checked above).
-                        unsafe { full_blocks_avx2_fma(self, frames.as_slice(), out) }
-                    } else {
-                        self.full_blocks(frames.as_slice(), out)
-                    }
-                }
-                #[cfg(not(target_arch = "x86_64"))]
-                {
-                    self.full_blocks(frames.as_slice(), out)
-                }
-            }
-            CovarianceType::Diagonal | CovarianceType::Spherical => 0,
-        };
-        let full = matches!(self.kind, CovarianceType::Full | CovarianceType::Tied);
-        for (x, row) in frames.iter().zip(out.chunks_exact_mut(s)).skip(blocked) {
-            if full {
-                // A single frame (e.g. the online filter): all states at once.
-                #[cfg(target_arch = "x86_64")]
-                {
-                    if linalg::has_avx2_fma() {
-                        // SAFETY: the CPU supports AVX2 and FMA (checked above).
-                        unsafe { full_one_frame_avx2_fma(self, x, row) };
-                        continue;
-                    }
-                }
-                self.full_one_frame(x, row);
-                continue;
-            }
-            for (i, o) in row.iter_mut().enumerate() {
-                *o = self.log_density_one(i, x);
-            }
+        if frames.has_missing() {
+            return self.log_density_missing(frames, out);
         }
+        self.log_density_complete(frames, out);
         Ok(())
     }
 
@@ -1055,51 +1387,11 @@ impl Emission for Gaussian {
                 "statistics shaped for another model".into(),
             ));
         }
-        let full = matches!(self.kind, CovarianceType::Full | CovarianceType::Tied);
-        for i in 0..s {
-            if stats.anchor_lazily && stats.weight[i] == 0.0 {
-                if let Some(t) = (0..frames.len()).find(|&t| weights[t * s + i] != 0.0) {
-                    stats.shift[i * d..(i + 1) * d].copy_from_slice(frames.frame(t));
-                }
-            }
+        self.anchor(frames, weights, stats);
+        if frames.has_missing() {
+            return self.accumulate_missing(frames, weights, stats);
         }
-        if full {
-            #[cfg(target_arch = "x86_64")]
-            {
-                if linalg::has_avx2_fma() {
-                    // SAFETY: the CPU supports AVX2 and FMA (checked above).
-                    unsafe { accumulate_full_avx2_fma(self, frames, weights, stats) };
-                    return Ok(());
-                }
-            }
-            self.accumulate_full(frames, weights, stats);
-            return Ok(());
-        }
-        for i in 0..s {
-            let c = &stats.shift[i * d..(i + 1) * d];
-            let sum = &mut stats.sum[i * d..(i + 1) * d];
-            let lo = &mut stats.lo[i * d..(i + 1) * d];
-            let hi = &mut stats.hi[i * d..(i + 1) * d];
-            let mut n = 0.0;
-            {
-                let q = &mut stats.sum_sq[i * d..(i + 1) * d];
-                for (t, x) in frames.iter().enumerate() {
-                    let w = weights[t * s + i];
-                    if w == 0.0 {
-                        continue;
-                    }
-                    n += w;
-                    for k in 0..d {
-                        lo[k] = lo[k].min(x[k]);
-                        hi[k] = hi[k].max(x[k]);
-                        let e = x[k] - c[k];
-                        sum[k] += w * e;
-                        q[k] += w * e * e;
-                    }
-                }
-            }
-            stats.weight[i] += n;
-        }
+        self.accumulate_complete(frames, weights, stats);
         Ok(())
     }
 

@@ -43,10 +43,50 @@ fn nearest(x: &[f64], centroids: &[f64], d: usize) -> (usize, f64) {
     best
 }
 
+/// A copy of `frames` whose missing values (NaN) are replaced by the mean of
+/// the observed values of their dimension (0 where a dimension is never
+/// observed); `None` when nothing is missing.
+///
+/// k-means only seeds EM, which then treats the missing values exactly, so
+/// the simplest imputation that keeps distances finite is enough here.
+fn mean_imputed(frames: Frames<'_>) -> Option<Vec<f64>> {
+    if !frames.has_missing() {
+        return None;
+    }
+    let d = frames.dim();
+    let (mut sum, mut count) = (vec![0.0; d], vec![0usize; d]);
+    for x in frames.iter() {
+        for k in 0..d {
+            if !x[k].is_nan() {
+                sum[k] += x[k];
+                count[k] += 1;
+            }
+        }
+    }
+    let mean: Vec<f64> = (0..d)
+        .map(|k| {
+            if count[k] > 0 {
+                sum[k] / count[k] as f64
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    Some(
+        frames
+            .as_slice()
+            .iter()
+            .enumerate()
+            .map(|(i, v)| if v.is_nan() { mean[i % d] } else { *v })
+            .collect(),
+    )
+}
+
 /// Clusters `frames` into `k` groups; deterministic for a given `rng` state.
 ///
 /// Errors when there are fewer frames than clusters. A cluster that empties
 /// during the iterations is re-seeded at the frame farthest from its centroid.
+/// Missing values (NaN) take the mean of their dimension's observed values.
 pub fn kmeans<R: Rng + ?Sized>(
     frames: Frames<'_>,
     k: usize,
@@ -54,6 +94,15 @@ pub fn kmeans<R: Rng + ?Sized>(
     max_iter: usize,
     rng: &mut R,
 ) -> Result<KMeans> {
+    if let Some(filled) = mean_imputed(frames) {
+        return kmeans(
+            Frames::new(&filled, frames.dim())?,
+            k,
+            seeding,
+            max_iter,
+            rng,
+        );
+    }
     let (n, d) = (frames.len(), frames.dim());
     if k == 0 || n < k {
         return Err(EmissionError::InvalidParameter {
@@ -100,9 +149,19 @@ pub fn kmeans<R: Rng + ?Sized>(
 /// changing or `max_iter` is reached. A cluster that empties is re-seeded at
 /// the frame farthest from its centroid.
 ///
-/// Errors when there is no frame, no centroid, or the centroids are not `k × D`.
+/// Errors when there is no frame, no centroid, or the centroids are not `k × D`
+/// (or not finite). Missing values take the mean of their dimension's observed values.
 pub fn lloyd(frames: Frames<'_>, mut centroids: Vec<f64>, max_iter: usize) -> Result<KMeans> {
+    if let Some(filled) = mean_imputed(frames) {
+        return lloyd(Frames::new(&filled, frames.dim())?, centroids, max_iter);
+    }
     let (n, d) = (frames.len(), frames.dim());
+    if centroids.iter().any(|c| !c.is_finite()) {
+        return Err(EmissionError::InvalidParameter {
+            name: "centroids",
+            reason: "a centroid value is not finite".into(),
+        });
+    }
     if n == 0 || centroids.is_empty() || centroids.len() % d != 0 {
         return Err(EmissionError::InvalidParameter {
             name: "centroids",

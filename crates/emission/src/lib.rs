@@ -19,6 +19,13 @@
 //! Implementations: [`Gaussian`] (full, diagonal, spherical and tied
 //! covariance), [`Categorical`], [`Poisson`] and [`Mixture`] (a mixture of any
 //! emission per state, e.g. hmmlearn's GMMHMM).
+//!
+//! Missing values: a NaN in a frame means "not observed". Every implementation
+//! evaluates such a frame on the marginal of its observed values
+//! (`b_i(x_o) = ∫ b_i(x) dx_m`, 1 when nothing is observed) and accumulates
+//! the expected sufficient statistics `E[φ(x) | x_o, state i]` under its
+//! current parameters, so that EM stays exact EM for the observed data. Data
+//! without NaN take the plain paths, bit for bit.
 
 #![warn(missing_docs)]
 
@@ -28,6 +35,7 @@ pub mod frames;
 pub mod gaussian;
 pub mod kmeans;
 pub mod linalg;
+mod missing;
 pub mod mixture;
 pub mod poisson;
 pub mod regularization;
@@ -126,6 +134,68 @@ pub trait Emission: Clone + Debug + Send + Sync {
 
     /// Number of free parameters (for AIC/BIC).
     fn n_parameters(&self) -> usize;
+}
+
+/// Maximum number of re-estimations by [`fit_weighted`] when values are missing.
+const MAX_REFINE: usize = 200;
+
+/// Fits the parameters of `template`'s structure (its parameter values are
+/// ignored) to frames with fixed weights:
+/// `θ = argmax_θ Σ_t Σ_i w_ti log b_i(x_t; θ)` (plus the regularisation), as
+/// the initialisations of HMMs and mixtures need (`w` from time bins or
+/// k-means clusters). `parts` are blocks of frames with their `T × S` weights.
+///
+/// With complete data this is one accumulation and one M-step. With missing
+/// values the expected statistics depend on the parameters, so the step is
+/// repeated from its own result (EM for the fixed assignment) until the
+/// weighted log-density `Σ w log b` gains less than `1e-14` relative, at
+/// most 200 times; the first step takes the missing values at each state's
+/// reference point, the following ones their conditional expectation.
+pub fn fit_weighted<E: Emission>(
+    template: &E,
+    parts: &[(Frames<'_>, &[f64])],
+    reg: &Regularization,
+) -> Result<(E, MStepReport)> {
+    let step = |model: &E| -> Result<(E, MStepReport)> {
+        let mut stats = model.new_stats();
+        for (frames, w) in parts {
+            model.accumulate(*frames, w, &mut stats)?;
+        }
+        let mut next = model.clone();
+        let report = next.m_step(&stats, reg)?;
+        Ok((next, report))
+    };
+    let (mut model, mut report) = step(template)?;
+    if !parts.iter().any(|(frames, _)| frames.has_missing()) {
+        return Ok((model, report));
+    }
+    let objective = |model: &E| -> Result<f64> {
+        let mut total = 0.0;
+        for (frames, w) in parts {
+            let log_b = model.log_density(*frames)?;
+            total += log_b
+                .iter()
+                .zip(w.iter())
+                .filter(|(_, w)| **w != 0.0)
+                .map(|(l, w)| w * l)
+                .sum::<f64>();
+        }
+        Ok(total)
+    };
+    let mut prev = objective(&model)?;
+    for _ in 0..MAX_REFINE {
+        let (next, r) = step(&model)?;
+        let obj = objective(&next)?;
+        model = next;
+        report = r;
+        // EM increases the objective; a gain within rounding (or a fall, which
+        // only an added-diagonal regulariser can cause) ends the iterations.
+        if obj - prev <= 1e-14 * (1.0 + obj.abs()) {
+            break;
+        }
+        prev = obj;
+    }
+    Ok((model, report))
 }
 
 /// Errors unless `found == expected` frame dimension.

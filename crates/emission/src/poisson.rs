@@ -138,7 +138,8 @@ impl Emission for Poisson {
     fn check_frames(&self, frames: Frames<'_>) -> Result<()> {
         check_dim(self.dim, frames.dim())?;
         for (k, x) in frames.as_slice().iter().enumerate() {
-            if !is_count(*x) {
+            // NaN: the count was not observed.
+            if !x.is_nan() && !is_count(*x) {
                 return Err(EmissionError::InvalidValue {
                     frame: k / self.dim,
                     column: k % self.dim,
@@ -155,8 +156,14 @@ impl Emission for Poisson {
         let (s, d) = (self.n_states(), self.dim);
         check_len("log-density output buffer", frames.len() * s, out.len())?;
         for (x, row) in frames.iter().zip(out.chunks_exact_mut(s)) {
-            let log_fact: f64 = x.iter().map(|v| libm::lgamma(v + 1.0)).sum();
-            let valid = x.iter().all(|v| is_count(*v));
+            // Missing counts (NaN) are left out: the dims are independent, so
+            // the marginal of the observed ones is their product.
+            let log_fact: f64 = x
+                .iter()
+                .filter(|v| !v.is_nan())
+                .map(|v| libm::lgamma(v + 1.0))
+                .sum();
+            let valid = x.iter().all(|v| v.is_nan() || is_count(*v));
             for (i, o) in row.iter_mut().enumerate() {
                 if !valid {
                     *o = f64::NEG_INFINITY;
@@ -164,6 +171,9 @@ impl Emission for Poisson {
                 }
                 let mut acc = -log_fact;
                 for k in 0..d {
+                    if x[k].is_nan() {
+                        continue;
+                    }
                     let lam = self.rates[i * d + k];
                     // 0 · log 0 = 0: a zero count has probability e^{−λ} even when λ = 0.
                     if x[k] > 0.0 {
@@ -204,7 +214,13 @@ impl Emission for Poisson {
                 let w = weights[t * s + i];
                 stats.weight[i] += w;
                 for k in 0..d {
-                    stats.sum[i * d + k] += w * x[k];
+                    // A missing count adds its expectation `λ_ik` under the current model.
+                    let v = if x[k].is_nan() {
+                        self.rates[i * d + k]
+                    } else {
+                        x[k]
+                    };
+                    stats.sum[i * d + k] += w * v;
                 }
             }
         }

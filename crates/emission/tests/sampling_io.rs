@@ -553,14 +553,17 @@ proptest! {
     #![proptest_config(ProptestConfig::with_cases(48))]
 
     #[test]
-    fn frames_report_the_first_non_finite_value(t in 1usize..20, d in 1usize..5, pos_seed in any::<u64>(), which in 0usize..3) {
+    fn frames_report_the_first_non_finite_value(t in 1usize..20, d in 1usize..5, pos_seed in any::<u64>(), which in 0usize..2) {
         let mut r = rng(pos_seed);
         let mut data = random_frames(t, d, 1.0, &mut r);
         let pos = r.random_range(0..t * d);
-        let bad = [f64::NAN, f64::INFINITY, f64::NEG_INFINITY][which];
+        let bad = [f64::INFINITY, f64::NEG_INFINITY][which];
         data[pos] = bad;
+        if pos > 0 {
+            data[0] = f64::NAN; // an earlier missing value (NaN) is not an error
+        }
         if pos + 1 < t * d {
-            data[t * d - 1] = f64::NAN; // a later bad value must not be the one reported
+            data[t * d - 1] = f64::INFINITY; // a later bad value must not be the one reported
         }
         match Frames::new(&data, d) {
             Err(EmissionError::InvalidValue { frame, column, value, .. }) => {

@@ -9,7 +9,9 @@
 use crate::error::{GmmError, Result};
 use crate::model::{normalise_log_row, MixtureModel};
 use phasekit_emission::kmeans::{kmeans, Seeding};
-use phasekit_emission::{Emission, Frames, MStepReport, Regularization, SufficientStatistics};
+use phasekit_emission::{
+    fit_weighted, Emission, Frames, MStepReport, Regularization, SufficientStatistics,
+};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
@@ -310,10 +312,7 @@ impl Em {
                 *c += v;
             }
         }
-        let mut stats = template.new_stats();
-        template.accumulate(frames, &r, &mut stats)?;
-        let mut components = template.clone();
-        components.m_step(&stats, &self.regularization)?;
+        let (components, _) = fit_weighted(template, &[(frames, &r)], &self.regularization)?;
         let weights = counts.iter().map(|c| c / n as f64).collect();
         MixtureModel::new(weights, components)
     }

@@ -900,9 +900,9 @@ fn dimension_mismatch_is_an_error() {
         model.marginal(&[]),
         Err(GmmError::Emission(EmissionError::InvalidDims { .. }))
     ));
-    // Non-finite data never reach the model.
+    // Infinite data never reach the model (NaN means "not observed").
     assert!(matches!(
-        Frames::new(&[0.0, f64::NAN], 2),
+        Frames::new(&[0.0, f64::INFINITY], 2),
         Err(EmissionError::InvalidValue {
             frame: 0,
             column: 1,

@@ -94,9 +94,41 @@ impl Conditional {
         })
     }
 
+    /// The outputs' marginal `N(μ_o, Σ_oo)`: the "conditional" on no input at
+    /// all, for a frame whose inputs are all missing.
+    pub fn unconditional(mean: &[f64], cov: &DMatrix<f64>, output: &[usize]) -> Result<Self> {
+        let d = mean.len();
+        if let Err(e) = phasekit_emission::check_dims(output, d) {
+            return Err(GmrError::InvalidDims(format!("output: {e}")));
+        }
+        if cov.nrows() != d || cov.ncols() != d {
+            return Err(EmissionError::DimensionMismatch {
+                context: "conditional: covariance rows/columns vs mean length",
+                expected: d,
+                found: cov.nrows(),
+            }
+            .into());
+        }
+        let n_out = output.len();
+        Ok(Conditional {
+            n_in: 0,
+            n_out,
+            mean_in: Vec::new(),
+            mean_out: output.iter().map(|&k| mean[k]).collect(),
+            regression: Vec::new(),
+            covariance: (0..n_out * n_out)
+                .map(|k| cov[(output[k / n_out], output[k % n_out])])
+                .collect(),
+        })
+    }
+
     /// Writes the conditional mean `μ_o + R (x_i − μ_i)` into `out`.
     #[inline]
     pub fn mean_into(&self, x_in: &[f64], out: &mut [f64]) {
+        if self.n_in == 0 {
+            out[..self.n_out].copy_from_slice(&self.mean_out);
+            return;
+        }
         // Input-major: the O running sums are independent, so each step of `i`
         // is O independent multiply-adds instead of one long dependency chain
         // per output. Every output still adds its terms in increasing `i`,

@@ -7,13 +7,22 @@
 //! mean `m = Σ_k h_k m_k(x)` and the moment-matched covariance
 //! `Σ_k h_k (C_k + (m_k − m)(m_k − m)ᵀ)` (within-state covariance plus the
 //! spread of the state means).
+//!
+//! Missing inputs: a NaN in an input frame means "not observed". The weights
+//! then come from the marginal of the observed inputs (the emissions handle
+//! that), and each state's conditional is taken on the observed inputs only,
+//! `μ_o + Σ_{o,i'} Σ_{i'i'}⁻¹ (x_{i'} − μ_{i'})` over the observed subset `i'`
+//! (the outputs' marginal when nothing is observed). These conditionals are
+//! built once per missing pattern and cached by the batch and online predictors.
 
 use crate::conditional::{check_io, Conditional};
 use crate::error::Result;
+use nalgebra::DMatrix;
 use phasekit_emission::{Emission, EmissionError, Frames, Gaussian};
 use phasekit_gmm::Gmm;
 use phasekit_hmm::{ForwardFilter, Hmm};
 use serde::{Deserialize, Serialize};
+use std::collections::HashMap;
 
 /// Predicted outputs of a sequence.
 #[derive(Debug, Clone, PartialEq)]
@@ -34,6 +43,10 @@ pub struct Regression {
     input: Vec<usize>,
     output: Vec<usize>,
     conditionals: Vec<Conditional>,
+    /// Per state, the joint mean and covariance restricted to `input ++ output`
+    /// (inputs first), from which the conditionals on a subset of the inputs
+    /// are built when some inputs are missing.
+    joint: Vec<(Vec<f64>, DMatrix<f64>)>,
 }
 
 impl Regression {
@@ -43,10 +56,41 @@ impl Regression {
         let conditionals = (0..joint.n_states())
             .map(|k| Conditional::new(joint.mean(k), &joint.covariance(k), input, output, k))
             .collect::<Result<Vec<_>>>()?;
+        let io: Vec<usize> = input.iter().chain(output).copied().collect();
+        let sub = joint.marginal(&io)?;
         Ok(Regression {
             input: input.to_vec(),
             output: output.to_vec(),
             conditionals,
+            joint: (0..sub.n_states())
+                .map(|k| (sub.mean(k).to_vec(), sub.covariance(k)))
+                .collect(),
+        })
+    }
+
+    /// The conditionals on the observed (non-NaN) values of the input frame
+    /// `x_in` only; the outputs' marginals when no input is observed.
+    fn for_observed(&self, x_in: &[f64]) -> Result<Regression> {
+        let n_in = self.input.len();
+        let observed: Vec<usize> = (0..n_in).filter(|&k| !x_in[k].is_nan()).collect();
+        let output: Vec<usize> = (n_in..n_in + self.output.len()).collect();
+        let conditionals = self
+            .joint
+            .iter()
+            .enumerate()
+            .map(|(k, (mean, cov))| {
+                if observed.is_empty() {
+                    Conditional::unconditional(mean, cov, &output)
+                } else {
+                    Conditional::new(mean, cov, &observed, &output, k)
+                }
+            })
+            .collect::<Result<Vec<_>>>()?;
+        Ok(Regression {
+            input: observed.iter().map(|&k| self.input[k]).collect(),
+            output: self.output.clone(),
+            conditionals,
+            joint: self.joint.clone(),
         })
     }
 
@@ -80,6 +124,9 @@ impl Regression {
     /// `K × O` values. States with zero weight are skipped. No allocation.
     ///
     /// A buffer of the wrong length is an error and nothing is written.
+    /// Missing inputs (NaN) are conditioned out (see the module documentation);
+    /// that builds the conditionals of the pattern on every call, which the
+    /// batch and online predictors avoid by caching them.
     #[inline]
     pub fn mix_into(
         &self,
@@ -89,14 +136,47 @@ impl Regression {
         cov: Option<&mut [f64]>,
         scratch: &mut [f64],
     ) -> Result<()> {
+        self.check_buffers(x_in, h, mean, cov.as_deref(), scratch)?;
+        if x_in.iter().any(|v| v.is_nan()) {
+            let r = self.for_observed(x_in)?;
+            let observed: Vec<f64> = x_in.iter().copied().filter(|v| !v.is_nan()).collect();
+            r.mix_unchecked(&observed, h, mean, cov, scratch);
+        } else {
+            self.mix_unchecked(x_in, h, mean, cov, scratch);
+        }
+        Ok(())
+    }
+
+    fn check_buffers(
+        &self,
+        x_in: &[f64],
+        h: &[f64],
+        mean: &[f64],
+        cov: Option<&[f64]>,
+        scratch: &[f64],
+    ) -> Result<()> {
         let (k, o) = (self.n_states(), self.n_out());
         check_len("GMR input frame", self.input.len(), x_in.len())?;
         check_len("GMR weights", k, h.len())?;
         check_len("GMR mean buffer", o, mean.len())?;
         check_len("GMR scratch buffer", k * o, scratch.len())?;
-        if let Some(c) = &cov {
+        if let Some(c) = cov {
             check_len("GMR covariance buffer", o * o, c.len())?;
         }
+        Ok(())
+    }
+
+    /// [`Regression::mix_into`] on buffers already checked, complete input.
+    #[inline]
+    fn mix_unchecked(
+        &self,
+        x_in: &[f64],
+        h: &[f64],
+        mean: &mut [f64],
+        cov: Option<&mut [f64]>,
+        scratch: &mut [f64],
+    ) {
+        let o = self.n_out();
         mean.fill(0.0);
         for ((c, hk), mk) in self
             .conditionals
@@ -126,7 +206,6 @@ impl Regression {
                 }
             }
         }
-        Ok(())
     }
 
     /// Mixes over a whole sequence with per-frame weights (`T × K`).
@@ -140,9 +219,11 @@ impl Regression {
         let mut mean = vec![0.0; t * o];
         let mut cov = with_covariance.then(|| vec![0.0; t * o * o]);
         let mut scratch = vec![0.0; k * o];
+        let mut patterns = PatternRegressions::default();
         for (tt, x) in frames.iter().enumerate() {
             let c = cov.as_mut().map(|c| &mut c[tt * o * o..(tt + 1) * o * o]);
-            self.mix_into(
+            patterns.mix(
+                self,
                 x,
                 &weights[tt * k..(tt + 1) * k],
                 &mut mean[tt * o..(tt + 1) * o],
@@ -156,6 +237,53 @@ impl Regression {
             covariance: cov,
             weights,
         })
+    }
+}
+
+/// Conditionals on the observed inputs, cached by missing pattern, and a
+/// buffer for the observed values: what [`Regression::mix_into`] would build
+/// on every call for a frame with missing inputs.
+#[derive(Debug, Clone, Default)]
+struct PatternRegressions {
+    map: HashMap<Vec<bool>, Regression>,
+    key: Vec<bool>,
+    observed: Vec<f64>,
+}
+
+/// Patterns held before the cache is emptied (bounds its memory).
+const PATTERN_CAPACITY: usize = 1024;
+
+impl PatternRegressions {
+    /// [`Regression::mix_into`] with the pattern's conditionals cached.
+    #[inline]
+    fn mix(
+        &mut self,
+        base: &Regression,
+        x_in: &[f64],
+        h: &[f64],
+        mean: &mut [f64],
+        cov: Option<&mut [f64]>,
+        scratch: &mut [f64],
+    ) -> Result<()> {
+        base.check_buffers(x_in, h, mean, cov.as_deref(), scratch)?;
+        if !x_in.iter().any(|v| v.is_nan()) {
+            base.mix_unchecked(x_in, h, mean, cov, scratch);
+            return Ok(());
+        }
+        self.key.clear();
+        self.key.extend(x_in.iter().map(|v| v.is_nan()));
+        if !self.map.contains_key(self.key.as_slice()) {
+            if self.map.len() >= PATTERN_CAPACITY {
+                self.map.clear();
+            }
+            let r = base.for_observed(x_in)?;
+            self.map.insert(self.key.clone(), r);
+        }
+        self.observed.clear();
+        self.observed
+            .extend(x_in.iter().copied().filter(|v| !v.is_nan()));
+        self.map[self.key.as_slice()].mix_unchecked(&self.observed, h, mean, cov, scratch);
+        Ok(())
     }
 }
 
@@ -278,6 +406,7 @@ impl HmmRegression {
         OnlineRegression {
             filter: self.input_model.filter(),
             regression: self.regression.clone(),
+            patterns: PatternRegressions::default(),
             mean: vec![0.0; o],
             covariance: vec![0.0; o * o],
             scratch: vec![0.0; k * o],
@@ -286,11 +415,13 @@ impl HmmRegression {
 }
 
 /// Online HMM-GMR: one input frame in, the predicted output (mean and
-/// covariance) out; no allocation per frame.
+/// covariance) out; no allocation per frame (a frame with missing inputs, NaN,
+/// builds its pattern's conditionals the first time that pattern is seen).
 #[derive(Debug, Clone)]
 pub struct OnlineRegression {
     filter: ForwardFilter<Gaussian>,
     regression: Regression,
+    patterns: PatternRegressions,
     mean: Vec<f64>,
     covariance: Vec<f64>,
     scratch: Vec<f64>,
@@ -300,8 +431,14 @@ impl OnlineRegression {
     /// Takes input frame `x^i_t`, updates the belief and returns the predicted output mean.
     pub fn step(&mut self, input_frame: &[f64]) -> Result<&[f64]> {
         let h = self.filter.step(input_frame)?;
-        self.regression
-            .mix_into(input_frame, h, &mut self.mean, None, &mut self.scratch)?;
+        self.patterns.mix(
+            &self.regression,
+            input_frame,
+            h,
+            &mut self.mean,
+            None,
+            &mut self.scratch,
+        )?;
         Ok(&self.mean)
     }
 
@@ -309,7 +446,8 @@ impl OnlineRegression {
     /// (read it with [`OnlineRegression::covariance`]).
     pub fn step_with_covariance(&mut self, input_frame: &[f64]) -> Result<&[f64]> {
         let h = self.filter.step(input_frame)?;
-        self.regression.mix_into(
+        self.patterns.mix(
+            &self.regression,
             input_frame,
             h,
             &mut self.mean,

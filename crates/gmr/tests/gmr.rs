@@ -834,7 +834,7 @@ fn bad_frames_are_errors_not_panics() {
     for bad in [
         &[0.0, 1.0][..],
         &[0.0, 1.0, 2.0, 3.0],
-        &[0.0, f64::NAN, 1.0],
+        &[0.0, f64::NEG_INFINITY, 1.0],
         &[f64::INFINITY, 0.0, 0.0],
         &[],
     ] {

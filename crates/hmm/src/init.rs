@@ -1,13 +1,14 @@
 //! Initial parameters for Baum-Welch.
 //!
 //! Every initialisation assigns frames to states (hard or soft), accumulates the
-//! emission statistics with those weights and runs one emission M-step, so it
+//! emission statistics with those weights and runs one emission M-step
+//! ([`fit_weighted`], which iterates that step when values are missing), so it
 //! works for any [`Emission`] without knowing its parameters.
 
 use crate::error::{HmmError, Result};
 use crate::model::Hmm;
 use phasekit_emission::kmeans::{kmeans, Seeding};
-use phasekit_emission::{Emission, Regularization, SequenceSet};
+use phasekit_emission::{fit_weighted, Emission, Regularization, SequenceSet};
 use rand::Rng;
 use serde::{Deserialize, Serialize};
 
@@ -58,12 +59,8 @@ fn emission_from_weights<E: Emission>(
     reg: &Regularization,
 ) -> Result<E> {
     let s = template.n_states();
-    let mut stats = template.new_stats();
     let mut per_state = vec![0.0; s];
-    for (k, (seq, w)) in data.iter().zip(weights).enumerate() {
-        template
-            .accumulate(seq, w, &mut stats)
-            .map_err(|e| HmmError::from(e).in_sequence(k))?;
+    for w in weights {
         for row in w.chunks_exact(s) {
             for (p, v) in per_state.iter_mut().zip(row) {
                 *p += v;
@@ -77,8 +74,8 @@ fn emission_from_weights<E: Emission>(
             data.len()
         )));
     }
-    let mut emission = template.clone();
-    emission.m_step(&stats, reg)?;
+    let parts: Vec<_> = data.iter().zip(weights).map(|(f, w)| (f, &w[..])).collect();
+    let (emission, _) = fit_weighted(template, &parts, reg)?;
     Ok(emission)
 }
 
