@@ -147,7 +147,12 @@ impl<E: Emission> MixtureModel<E> {
 }
 
 /// Checked EM settings; build with [`Em::builder`].
+///
+/// Deserialisation runs [`EmBuilder::build`]'s checks (and
+/// [`Regularization`]'s), so settings read from a file are refused with the
+/// same message as in code (e.g. `restarts = 0`, a NaN tolerance).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(try_from = "EmRaw")]
 pub struct Em {
     max_iter: usize,
     tol: f64,
@@ -156,6 +161,34 @@ pub struct Em {
     restarts: usize,
     seed: u64,
     threads: Option<usize>,
+}
+
+/// The serialised form of [`Em`], before validation.
+#[derive(Deserialize)]
+struct EmRaw {
+    max_iter: usize,
+    tol: f64,
+    regularization: Regularization,
+    init: GmmInit,
+    restarts: usize,
+    seed: u64,
+    threads: Option<usize>,
+}
+
+impl TryFrom<EmRaw> for Em {
+    type Error = GmmError;
+    fn try_from(r: EmRaw) -> Result<Self> {
+        EmBuilder(Em {
+            max_iter: r.max_iter,
+            tol: r.tol,
+            regularization: r.regularization,
+            init: r.init,
+            restarts: r.restarts,
+            seed: r.seed,
+            threads: r.threads,
+        })
+        .build()
+    }
 }
 
 impl Default for Em {

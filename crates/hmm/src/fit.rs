@@ -218,7 +218,13 @@ impl<E: Emission> Hmm<E> {
 }
 
 /// Checked settings of Baum-Welch; build with [`BaumWelch::builder`].
+///
+/// Deserialisation runs [`BaumWelchBuilder::build`]'s checks (and
+/// [`Regularization`]'s), so settings read from a file are refused with the
+/// same message as in code (e.g. `restarts = 0`, a NaN tolerance, k-bins
+/// smoothing outside `[0, 1]`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(try_from = "BaumWelchRaw")]
 pub struct BaumWelch {
     max_iter: usize,
     tol: f64,
@@ -229,6 +235,38 @@ pub struct BaumWelch {
     restarts: usize,
     seed: u64,
     threads: Option<usize>,
+}
+
+/// The serialised form of [`BaumWelch`], before validation.
+#[derive(Deserialize)]
+struct BaumWelchRaw {
+    max_iter: usize,
+    tol: f64,
+    convergence: Convergence,
+    regularization: Regularization,
+    update: Update,
+    init: Init,
+    restarts: usize,
+    seed: u64,
+    threads: Option<usize>,
+}
+
+impl TryFrom<BaumWelchRaw> for BaumWelch {
+    type Error = HmmError;
+    fn try_from(r: BaumWelchRaw) -> Result<Self> {
+        BaumWelchBuilder(BaumWelch {
+            max_iter: r.max_iter,
+            tol: r.tol,
+            convergence: r.convergence,
+            regularization: r.regularization,
+            update: r.update,
+            init: r.init,
+            restarts: r.restarts,
+            seed: r.seed,
+            threads: r.threads,
+        })
+        .build()
+    }
 }
 
 /// Builder of [`BaumWelch`]; [`BaumWelchBuilder::build`] validates once.
