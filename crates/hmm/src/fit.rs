@@ -359,8 +359,14 @@ impl BaumWelchBuilder {
         self.0.max_iter = n;
         self
     }
-    /// Stop when the log-likelihood gain (on the [`Convergence`] scale) is below `tol`;
-    /// a decrease also stops. `f64::NEG_INFINITY` disables the test.
+    /// Stop when the gain of the objective between two E-steps (on the
+    /// [`Convergence`] scale) is below `tol`; a decrease also stops.
+    /// `f64::NEG_INFINITY` disables the test.
+    ///
+    /// The objective is `log p(X) + log prior` ([`Emission::log_prior`]), the
+    /// quantity EM increases: it is `log p(X)` itself when the regularisation
+    /// is not a prior (none, or `r·I` added after the M-step), and the
+    /// penalised objective under an inverse-Wishart prior or pseudo-counts.
     pub fn tol(mut self, tol: f64) -> Self {
         self.0.tol = tol;
         self
@@ -568,8 +574,11 @@ impl BaumWelch {
                 let stats = hmm.expected_statistics(data)?;
                 let ll = stats.log_likelihood;
                 let obj = ll + hmm.emission.log_prior(&self.regularization);
-                if let Some(prev) = log_likelihood.last() {
-                    if self.scale(data, ll) - self.scale(data, *prev) < self.tol {
+                // Test the gain of what EM increases: the penalised objective
+                // `log p(X) + log prior`. Without a prior `log_prior` is exactly 0,
+                // so `obj == ll` bit for bit and the test is the log-likelihood's.
+                if let Some(prev) = objective.last() {
+                    if self.scale(data, obj) - self.scale(data, *prev) < self.tol {
                         converged = true;
                     }
                 }
