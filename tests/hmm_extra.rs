@@ -147,11 +147,10 @@ fn long_sample_matches_the_model() {
     for _ in 0..n_seq {
         first[hmm.sample(1, &mut r).unwrap().1[0]] += 1;
     }
-    for i in 0..s {
-        let p = hmm.start()[i];
+    for (i, (&p, &count)) in hmm.start().iter().zip(&first).enumerate() {
         within_5_se(
             &format!("π[{i}]"),
-            first[i] as f64 / n_seq as f64,
+            count as f64 / n_seq as f64,
             p,
             (p * (1.0 - p) / n_seq as f64).sqrt(),
         );
@@ -605,7 +604,8 @@ fn left_right_models_count_only_free_parameters() {
         Poisson::unit(3, 2).unwrap(),
     )
     .unwrap();
-    assert_eq!(partial.n_parameters(), 1 + (1 + 0 + 2) + 6);
+    // π: 1; rows: 1, 0, 2; six Poisson rates.
+    assert_eq!(partial.n_parameters(), 1 + 3 + 6);
     assert_eq!(partial.n_parameters(), reference_free_parameters(&partial));
 }
 
