@@ -28,12 +28,44 @@ pub enum CovarianceRegularization {
 }
 
 /// Regularisation applied by every M-step, validated at construction.
+///
+/// Deserialisation runs the same checks as the constructors (a negative or
+/// non-finite amount, or a non-positive inverse-Wishart scale, is refused with
+/// the name of the offending setting), so settings read from a file are as
+/// trustworthy as settings built in code.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(try_from = "RegularizationRaw")]
 pub struct Regularization {
     covariance: CovarianceRegularization,
     max_jitter: f64,
     min_weight: f64,
     pseudo_count: f64,
+}
+
+/// The serialised form of [`Regularization`], before validation.
+#[derive(Deserialize)]
+struct RegularizationRaw {
+    covariance: CovarianceRegularization,
+    max_jitter: f64,
+    min_weight: f64,
+    pseudo_count: f64,
+}
+
+impl TryFrom<RegularizationRaw> for Regularization {
+    type Error = EmissionError;
+    /// Rebuilds through the checked constructors, so that no unchecked value gets in.
+    fn try_from(raw: RegularizationRaw) -> Result<Self> {
+        let base = match raw.covariance {
+            CovarianceRegularization::None => Regularization::none(),
+            CovarianceRegularization::AddDiagonal(r) => Regularization::add_diagonal(r)?,
+            CovarianceRegularization::InverseWishart { scale, dof } => {
+                Regularization::inverse_wishart(scale, dof)?
+            }
+        };
+        base.with_max_jitter(raw.max_jitter)?
+            .with_min_weight(raw.min_weight)?
+            .with_pseudo_count(raw.pseudo_count)
+    }
 }
 
 impl Default for Regularization {

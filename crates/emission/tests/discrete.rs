@@ -29,7 +29,7 @@ fn assert_not_nan(v: &[f64]) {
 // ---------------------------------------------------------------------------
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(48))]
+    #![proptest_config(ProptestConfig { rng_seed: match std::env::var_os("PROPTEST_RNG_SEED") { None => proptest::test_runner::RngSeed::Fixed(0xd15c_4e7e), Some(_) => ProptestConfig::default().rng_seed }, ..ProptestConfig::with_cases(48) })]
 
     #[test]
     fn categorical_log_density_is_log_probability(seed in any::<u64>(), s in 1usize..=3, k in 1usize..=6, t in 1usize..20) {
@@ -193,7 +193,7 @@ fn direct_poisson_log_pmf(x: &[f64], rates: &[f64]) -> f64 {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(48))]
+    #![proptest_config(ProptestConfig { rng_seed: match std::env::var_os("PROPTEST_RNG_SEED") { None => proptest::test_runner::RngSeed::Fixed(0xd15c_4e7e), Some(_) => ProptestConfig::default().rng_seed }, ..ProptestConfig::with_cases(48) })]
 
     #[test]
     fn poisson_log_density_matches_direct_formula(seed in any::<u64>(), s in 1usize..=3, d in 1usize..=4, t in 1usize..15) {

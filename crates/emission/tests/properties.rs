@@ -157,7 +157,7 @@ fn model_snapshot<E: serde::Serialize>(e: &E) -> String {
 // ---------------------------------------------------------------------------
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(64))]
+    #![proptest_config(ProptestConfig { rng_seed: match std::env::var_os("PROPTEST_RNG_SEED") { None => proptest::test_runner::RngSeed::Fixed(0x9a0b_e471), Some(_) => ProptestConfig::default().rng_seed }, ..ProptestConfig::with_cases(64) })]
 
     #[test]
     fn gaussian_log_density_matches_textbook(seed in any::<u64>(), d in 1usize..=5, s in 1usize..=3, k in 0usize..4) {
@@ -218,7 +218,7 @@ fn gaussian_log_density_is_invariant_across_blocks() {
 // ---------------------------------------------------------------------------
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(64))]
+    #![proptest_config(ProptestConfig { rng_seed: match std::env::var_os("PROPTEST_RNG_SEED") { None => proptest::test_runner::RngSeed::Fixed(0x9a0b_e471), Some(_) => ProptestConfig::default().rng_seed }, ..ProptestConfig::with_cases(64) })]
 
     #[test]
     fn gaussian_marginal_is_the_sub_block(seed in any::<u64>(), d in 1usize..=5, s in 1usize..=3, k in 0usize..4) {
@@ -307,7 +307,7 @@ fn check_m_step(kind: CovarianceType, seed: u64, d: usize, s: usize, t: usize, r
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(32))]
+    #![proptest_config(ProptestConfig { rng_seed: match std::env::var_os("PROPTEST_RNG_SEED") { None => proptest::test_runner::RngSeed::Fixed(0x9a0b_e471), Some(_) => ProptestConfig::default().rng_seed }, ..ProptestConfig::with_cases(32) })]
 
     #[test]
     fn gaussian_m_step_matches_weighted_formulas(
@@ -397,7 +397,7 @@ fn inverse_wishart_full_m_step_formula_spelled_out() {
 // ---------------------------------------------------------------------------
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(24))]
+    #![proptest_config(ProptestConfig { rng_seed: match std::env::var_os("PROPTEST_RNG_SEED") { None => proptest::test_runner::RngSeed::Fixed(0x9a0b_e471), Some(_) => ProptestConfig::default().rng_seed }, ..ProptestConfig::with_cases(24) })]
 
     #[test]
     fn gaussian_stats_merge_equals_one_pass(seed in any::<u64>(), d in 1usize..=4, s in 1usize..=3, k in 0usize..4, t in 2usize..30) {
@@ -697,7 +697,7 @@ fn with_covariances(g: &Gaussian, f: impl Fn(usize, &DMatrix<f64>) -> DMatrix<f6
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(32))]
+    #![proptest_config(ProptestConfig { rng_seed: match std::env::var_os("PROPTEST_RNG_SEED") { None => proptest::test_runner::RngSeed::Fixed(0x9a0b_e471), Some(_) => ProptestConfig::default().rng_seed }, ..ProptestConfig::with_cases(32) })]
 
     #[test]
     fn inverse_wishart_log_prior_matches_formula(seed in any::<u64>(), d in 1usize..=4, s in 1usize..=3, k in 0usize..4,
@@ -779,7 +779,7 @@ fn random_mixture<R: Rng + ?Sized>(
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(32))]
+    #![proptest_config(ProptestConfig { rng_seed: match std::env::var_os("PROPTEST_RNG_SEED") { None => proptest::test_runner::RngSeed::Fixed(0x9a0b_e471), Some(_) => ProptestConfig::default().rng_seed }, ..ProptestConfig::with_cases(32) })]
 
     #[test]
     fn mixture_log_density_is_log_sum_of_weighted_components(seed in any::<u64>(), d in 1usize..=4, s in 1usize..=3, m in 1usize..=3, k in 0usize..4) {
@@ -1076,7 +1076,7 @@ where
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(16))]
+    #![proptest_config(ProptestConfig { rng_seed: match std::env::var_os("PROPTEST_RNG_SEED") { None => proptest::test_runner::RngSeed::Fixed(0x9a0b_e471), Some(_) => ProptestConfig::default().rng_seed }, ..ProptestConfig::with_cases(16) })]
 
     #[test]
     fn every_emission_merges_like_one_pass(seed in any::<u64>(), s in 1usize..=3, d in 1usize..=3, t in 2usize..25) {

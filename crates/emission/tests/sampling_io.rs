@@ -201,7 +201,7 @@ where
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(24))]
+    #![proptest_config(ProptestConfig { rng_seed: match std::env::var_os("PROPTEST_RNG_SEED") { None => proptest::test_runner::RngSeed::Fixed(0x5a3b_11e0), Some(_) => ProptestConfig::default().rng_seed }, ..ProptestConfig::with_cases(24) })]
 
     #[test]
     fn serde_roundtrip_preserves_log_densities(seed in any::<u64>(), d in 1usize..=4, s in 1usize..=3) {
@@ -460,7 +460,7 @@ fn check_consistent(frames: Frames<'_>, res: &phasekit_emission::kmeans::KMeans,
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(24))]
+    #![proptest_config(ProptestConfig { rng_seed: match std::env::var_os("PROPTEST_RNG_SEED") { None => proptest::test_runner::RngSeed::Fixed(0x5a3b_11e0), Some(_) => ProptestConfig::default().rng_seed }, ..ProptestConfig::with_cases(24) })]
 
     #[test]
     fn kmeans_recovers_separated_blobs(seed in any::<u64>(), k in 1usize..=4, d in 1usize..=3) {
@@ -550,7 +550,7 @@ fn kmeans_refuses_too_few_frames_and_handles_duplicates() {
 // ---------------------------------------------------------------------------
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(48))]
+    #![proptest_config(ProptestConfig { rng_seed: match std::env::var_os("PROPTEST_RNG_SEED") { None => proptest::test_runner::RngSeed::Fixed(0x5a3b_11e0), Some(_) => ProptestConfig::default().rng_seed }, ..ProptestConfig::with_cases(48) })]
 
     #[test]
     fn frames_report_the_first_non_finite_value(t in 1usize..20, d in 1usize..5, pos_seed in any::<u64>(), which in 0usize..2) {

@@ -149,7 +149,12 @@ impl<E: Emission> MixtureModel<E> {
 }
 
 /// Checked EM settings; build with [`Em::builder`].
+///
+/// Deserialisation runs [`EmBuilder::build`]'s checks (and
+/// [`Regularization`]'s), so settings read from a file are refused with the
+/// same message as in code (e.g. `restarts = 0`, a NaN tolerance).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(try_from = "EmRaw")]
 pub struct Em {
     max_iter: usize,
     tol: f64,
@@ -158,6 +163,34 @@ pub struct Em {
     restarts: usize,
     seed: u64,
     threads: Option<usize>,
+}
+
+/// The serialised form of [`Em`], before validation.
+#[derive(Deserialize)]
+struct EmRaw {
+    max_iter: usize,
+    tol: f64,
+    regularization: Regularization,
+    init: GmmInit,
+    restarts: usize,
+    seed: u64,
+    threads: Option<usize>,
+}
+
+impl TryFrom<EmRaw> for Em {
+    type Error = GmmError;
+    fn try_from(r: EmRaw) -> Result<Self> {
+        EmBuilder(Em {
+            max_iter: r.max_iter,
+            tol: r.tol,
+            regularization: r.regularization,
+            init: r.init,
+            restarts: r.restarts,
+            seed: r.seed,
+            threads: r.threads,
+        })
+        .build()
+    }
 }
 
 impl Default for Em {
@@ -186,8 +219,12 @@ impl EmBuilder {
         self.0.max_iter = n;
         self
     }
-    /// Stop when the gain of the mean log-likelihood per frame is below `tol`
-    /// (a decrease also stops); `f64::NEG_INFINITY` disables the test.
+    /// Stop when the gain of the objective per frame between two E-steps is
+    /// below `tol` (a decrease also stops); `f64::NEG_INFINITY` disables the test.
+    ///
+    /// The objective is `log p(X) + log prior`, what EM increases: the
+    /// log-likelihood itself unless the regularisation is a prior
+    /// (inverse-Wishart covariances, pseudo-counts on the weights).
     pub fn tol(mut self, tol: f64) -> Self {
         self.0.tol = tol;
         self
@@ -400,11 +437,15 @@ impl Em {
             loop {
                 let stats = model.expected_statistics(frames)?;
                 let ll = stats.log_likelihood;
-                if let Some(prev) = log_likelihood.last() {
-                    converged = (ll - prev) / n < self.tol;
+                let obj = ll + model.log_prior(&self.regularization);
+                // Test the gain of what EM increases, `log p(X) + log prior`;
+                // without a prior `log_prior` is exactly 0 and this is the
+                // log-likelihood's gain, bit for bit.
+                if let Some(prev) = objective.last() {
+                    converged = (obj - prev) / n < self.tol;
                 }
                 log_likelihood.push(ll);
-                objective.push(ll + model.log_prior(&self.regularization));
+                objective.push(obj);
                 if converged || m_steps.len() >= self.max_iter {
                     break;
                 }

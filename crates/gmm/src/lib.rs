@@ -5,8 +5,10 @@
 //! * [`Em`]: EM with k-means++ or random initialisation, restarts, tolerance,
 //!   regularisation reported as in the emission crate, per-iteration history and a
 //!   parallel E-step that is bit-identical for any number of threads;
-//! * [`selection`]: the number of components (or of HMM states) by BIC over a
-//!   range, and by G-means with the Anderson–Darling test.
+//! * [`selection`]: the number of mixture components or of HMM states, by BIC
+//!   over a range ([`select_mixture_bic`], [`select_hmm_states_bic`]) and by
+//!   G-means with the Anderson–Darling test ([`gmeans`],
+//!   [`select_hmm_states_gmeans`]).
 
 #![warn(missing_docs)]
 
@@ -19,6 +21,6 @@ pub use em::{Em, EmBuilder, FittedMixture, GmmFitReport, GmmInit, MixtureStatist
 pub use error::{GmmError, Result};
 pub use model::{Gmm, MixtureModel, MODEL_FORMAT_VERSION};
 pub use selection::{
-    anderson_darling_normal, gmeans, select_hmm_states_bic, select_mixture_bic, GMeans,
-    GMeansResult, Selection,
+    anderson_darling_normal, gmeans, select_hmm_states_bic, select_hmm_states_gmeans,
+    select_mixture_bic, GMeans, GMeansBuilder, GMeansResult, GMeansStates, Selection,
 };

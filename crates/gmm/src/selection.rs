@@ -5,7 +5,7 @@ use crate::em::Em;
 use crate::error::{GmmError, Result};
 use phasekit_emission::kmeans::lloyd;
 use phasekit_emission::{Emission, Frames, SequenceSet};
-use phasekit_hmm::BaumWelch;
+use phasekit_hmm::{BaumWelch, Fitted};
 use serde::{Deserialize, Serialize};
 
 /// Scores of every candidate and the chosen one.
@@ -79,6 +79,56 @@ pub fn select_hmm_states_bic<E: Emission>(
     pick(scores, failures)
 }
 
+/// The number of HMM states chosen by G-means, and the HMM fitted with it.
+#[derive(Debug, Clone)]
+pub struct GMeansStates<E: Emission> {
+    /// `best` is the number of clusters `K` G-means found; `scores` holds
+    /// `(K, BIC)` of the fitted HMM; `failures` is empty (a failed fit is an error).
+    pub selection: Selection,
+    /// The G-means clustering of the frames of all sequences.
+    pub clusters: GMeansResult,
+    /// The HMM with `K` states fitted by the given Baum-Welch settings.
+    pub fitted: Fitted<E>,
+}
+
+/// The number of HMM states by G-means (Hamerly & Elkan 2003), as the seed
+/// paper proposes: `K` is the number of clusters [`gmeans`] finds on the frames
+/// of all sequences pooled (time order ignored), then an HMM with structure
+/// `template(K)` is fitted by `bw` (its initialisation, restarts and seed).
+///
+/// The returned [`Selection`] has `best = K` and the BIC
+/// `−2 log p(X) + p log N` of the fitted HMM as its one score, so it reads like
+/// [`select_hmm_states_bic`]'s. Errors if the data are empty, if
+/// `template(K)` cannot be built, or if the fit fails (naming `K`).
+pub fn select_hmm_states_gmeans<E: Emission>(
+    bw: &BaumWelch,
+    template: impl Fn(usize) -> phasekit_emission::Result<E>,
+    data: &SequenceSet,
+    settings: GMeans,
+) -> Result<GMeansStates<E>> {
+    if data.is_empty() {
+        return Err(GmmError::TooFewFrames("no sequences given".into()));
+    }
+    let clusters = gmeans(data.all_frames(), settings)?;
+    let k = clusters.k;
+    let context = |e: String| GmmError::InvalidParameter {
+        name: "states",
+        reason: format!("G-means chose {k} states, but the HMM cannot be fitted: {e}"),
+    };
+    let t = template(k).map_err(|e| context(e.to_string()))?;
+    let fitted = bw.fit(&t, data).map_err(|e| context(e.to_string()))?;
+    let bic = fitted.model.bic(data)?;
+    Ok(GMeansStates {
+        selection: Selection {
+            best: k,
+            scores: vec![(k, bic)],
+            failures: Vec::new(),
+        },
+        clusters,
+        fitted,
+    })
+}
+
 /// Anderson–Darling statistic `A²` of `x` against a normal with mean and variance
 /// estimated from `x`, with the small-sample correction
 /// `A*² = A² (1 + 0.75/n + 2.25/n²)` (D'Agostino & Stephens 1986, table 4.7), and its
@@ -126,20 +176,43 @@ pub fn anderson_darling_normal(x: &[f64]) -> Option<(f64, f64)> {
     Some((a, p.clamp(0.0, 1.0)))
 }
 
-/// Settings of [`gmeans`].
+/// Checked settings of [`gmeans`]; build with [`GMeans::builder`] (or take
+/// [`GMeans::default`]). Every setting is validated once, by
+/// [`GMeansBuilder::build`] and on deserialisation.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(try_from = "GMeansRaw")]
 pub struct GMeans {
-    /// Significance level of the Anderson–Darling test (Hamerly & Elkan use `1e-4`).
-    pub alpha: f64,
-    /// Never grow beyond this many clusters.
-    pub max_k: usize,
-    /// Clusters with fewer frames than this are not split.
-    pub min_cluster: usize,
-    /// Lloyd iterations per refinement.
-    pub max_iter: usize,
+    alpha: f64,
+    max_k: usize,
+    min_cluster: usize,
+    max_iter: usize,
+}
+
+/// The serialised form of [`GMeans`], before validation.
+#[derive(Deserialize)]
+struct GMeansRaw {
+    alpha: f64,
+    max_k: usize,
+    min_cluster: usize,
+    max_iter: usize,
+}
+
+impl TryFrom<GMeansRaw> for GMeans {
+    type Error = GmmError;
+    fn try_from(r: GMeansRaw) -> Result<Self> {
+        GMeansBuilder(GMeans {
+            alpha: r.alpha,
+            max_k: r.max_k,
+            min_cluster: r.min_cluster,
+            max_iter: r.max_iter,
+        })
+        .build()
+    }
 }
 
 impl Default for GMeans {
+    /// `α = 1e-4` (Hamerly & Elkan), at most 32 clusters, clusters of fewer
+    /// than 8 frames not split, 100 Lloyd iterations per refinement.
     fn default() -> Self {
         GMeans {
             alpha: 1e-4,
@@ -147,6 +220,90 @@ impl Default for GMeans {
             min_cluster: 8,
             max_iter: 100,
         }
+    }
+}
+
+impl GMeans {
+    /// A builder starting from [`GMeans::default`].
+    pub fn builder() -> GMeansBuilder {
+        GMeansBuilder(GMeans::default())
+    }
+    /// Significance level `α` of the Anderson–Darling test: a cluster is split when `p < α`.
+    pub fn alpha(&self) -> f64 {
+        self.alpha
+    }
+    /// Never grow beyond this many clusters.
+    pub fn max_k(&self) -> usize {
+        self.max_k
+    }
+    /// Clusters with fewer frames than this are not split.
+    pub fn min_cluster(&self) -> usize {
+        self.min_cluster
+    }
+    /// Lloyd iterations per refinement.
+    pub fn max_iter(&self) -> usize {
+        self.max_iter
+    }
+}
+
+/// Builder of [`GMeans`]; [`GMeansBuilder::build`] validates once.
+#[derive(Debug, Clone, Copy)]
+pub struct GMeansBuilder(GMeans);
+
+impl GMeansBuilder {
+    /// Significance level `α ∈ (0, 1)` of the Anderson–Darling test (Hamerly & Elkan use `1e-4`).
+    pub fn alpha(mut self, alpha: f64) -> Self {
+        self.0.alpha = alpha;
+        self
+    }
+    /// Never grow beyond `max_k ≥ 1` clusters.
+    pub fn max_k(mut self, max_k: usize) -> Self {
+        self.0.max_k = max_k;
+        self
+    }
+    /// Clusters with fewer than `min_cluster ≥ 3` frames are not split (the
+    /// Anderson–Darling statistic needs at least 3 values).
+    pub fn min_cluster(mut self, min_cluster: usize) -> Self {
+        self.0.min_cluster = min_cluster;
+        self
+    }
+    /// At most `max_iter ≥ 1` Lloyd iterations per refinement.
+    pub fn max_iter(mut self, max_iter: usize) -> Self {
+        self.0.max_iter = max_iter;
+        self
+    }
+    /// Validates the settings, naming the first bad one.
+    pub fn build(self) -> Result<GMeans> {
+        let g = self.0;
+        let bad = |name, reason: String| Err(GmmError::InvalidParameter { name, reason });
+        if !(g.alpha > 0.0 && g.alpha < 1.0) {
+            return bad(
+                "alpha",
+                format!(
+                    "G-means significance level must lie in (0, 1), got {}",
+                    g.alpha
+                ),
+            );
+        }
+        if g.max_k == 0 {
+            return bad("max_k", "G-means needs at least one cluster, got 0".into());
+        }
+        if g.min_cluster < 3 {
+            return bad(
+                "min_cluster",
+                format!(
+                    "the Anderson–Darling test needs at least 3 frames per cluster, got {}",
+                    g.min_cluster
+                ),
+            );
+        }
+        if g.max_iter == 0 {
+            return bad(
+                "max_iter",
+                "G-means needs at least one Lloyd iteration, got 0".into(),
+            );
+        }
+        Ok(g)
     }
 }
 
@@ -167,14 +324,9 @@ pub struct GMeansResult {
 /// children start at `c ± s √(2λ/π)` along the principal axis `s`, `λ` its variance).
 pub fn gmeans(frames: Frames<'_>, settings: GMeans) -> Result<GMeansResult> {
     let (n, d) = (frames.len(), frames.dim());
+    // `settings` were validated when built (or deserialised).
     if n == 0 {
         return Err(GmmError::TooFewFrames("G-means needs frames".into()));
-    }
-    if !(settings.alpha > 0.0 && settings.alpha < 1.0) || settings.max_k == 0 {
-        return Err(GmmError::InvalidParameter {
-            name: "gmeans",
-            reason: format!("alpha must lie in (0, 1) and max_k ≥ 1, got {settings:?}"),
-        });
     }
     let mut centroids = vec![0.0; d];
     for x in frames.iter() {
@@ -229,7 +381,7 @@ pub fn gmeans(frames: Frames<'_>, settings: GMeans) -> Result<GMeansResult> {
 /// The two children of a cluster if the Anderson–Darling test rejects its Gaussianity.
 fn split_cluster(members: &[f64], c: &[f64], d: usize, settings: GMeans) -> Option<Vec<f64>> {
     let m = members.len() / d;
-    if m < settings.min_cluster.max(3) {
+    if m < settings.min_cluster {
         return None;
     }
     let cov = nalgebra::DMatrix::from_fn(d, d, |r, q| {

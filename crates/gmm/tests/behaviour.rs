@@ -922,31 +922,16 @@ fn invalid_settings_are_refused() {
     bad(Em::builder().threads(0).build(), "threads");
     let data = [0.0, 1.0, 0.5, 2.0, 3.0, 1.0];
     let frames = Frames::new(&data, 1).unwrap();
-    for settings in [
-        GMeans {
-            alpha: 0.0,
-            ..GMeans::default()
-        },
-        GMeans {
-            alpha: 1.0,
-            ..GMeans::default()
-        },
-        GMeans {
-            alpha: f64::NAN,
-            ..GMeans::default()
-        },
-        GMeans {
-            max_k: 0,
-            ..GMeans::default()
-        },
+    for (settings, name) in [
+        (GMeans::builder().alpha(0.0), "alpha"),
+        (GMeans::builder().alpha(1.0), "alpha"),
+        (GMeans::builder().alpha(f64::NAN), "alpha"),
+        (GMeans::builder().max_k(0), "max_k"),
     ] {
-        assert!(
-            matches!(
-                gmeans(frames, settings),
-                Err(GmmError::InvalidParameter { .. })
-            ),
-            "{settings:?}"
-        );
+        match settings.build() {
+            Err(GmmError::InvalidParameter { name: n, .. }) => assert_eq!(n, name),
+            other => panic!("{name}: {other:?}"),
+        }
     }
     // Model selection: a candidate that cannot be built is reported, not fatal;
     // no usable candidate is an error.
@@ -1032,14 +1017,7 @@ fn gmeans_never_exceeds_max_k() {
     }
     let frames = Frames::new(&data, 2).unwrap();
     for max_k in 1..=20 {
-        let g = gmeans(
-            frames,
-            GMeans {
-                max_k,
-                ..GMeans::default()
-            },
-        )
-        .unwrap();
+        let g = gmeans(frames, GMeans::builder().max_k(max_k).build().unwrap()).unwrap();
         assert!(g.k <= max_k, "max_k = {max_k}: found {} clusters", g.k);
         assert_eq!(g.k, max_k.min(16), "max_k = {max_k}");
         assert_eq!(g.centroids.len(), 2 * g.k);

@@ -71,9 +71,49 @@ pub struct ExpectedStatistics<S> {
     pub n_frames: usize,
 }
 
+/// Errors unless a statistics vector has the length the model needs.
+fn check_stats_len(name: &'static str, expected: usize, found: usize) -> Result<()> {
+    if expected == found {
+        Ok(())
+    } else {
+        Err(HmmError::InvalidParameter {
+            name,
+            reason: format!("{found} entries, expected {expected}"),
+        })
+    }
+}
+
 impl<S: SufficientStatistics> ExpectedStatistics<S> {
-    /// Adds `other` (statistics of other sequences under the same model).
+    /// Number of states `S` these statistics are shaped for (`start.len()`).
+    pub fn n_states(&self) -> usize {
+        self.start.len()
+    }
+
+    /// Checks that `start` has `s` entries and `transitions` `s × s`.
+    fn check_shape(&self, s: usize) -> Result<()> {
+        check_stats_len("start statistics", s, self.start.len())?;
+        check_stats_len("transition statistics", s * s, self.transitions.len())
+    }
+
+    /// Adds `other` (statistics of other sequences under the same model):
+    /// every count is the sum of the two.
+    ///
+    /// Errors, leaving `self` unchanged, when the two are shaped for different
+    /// models (number of states, or the emission's own shape), instead of
+    /// silently adding only the common prefix.
     pub fn merge(&mut self, other: &Self) -> Result<()> {
+        let s = self.n_states();
+        self.check_shape(s)?;
+        other.check_shape(s).map_err(|e| match e {
+            HmmError::InvalidParameter { name, reason } => HmmError::InvalidParameter {
+                name,
+                reason: format!("cannot merge statistics of another model: {reason}"),
+            },
+            e => e,
+        })?;
+        // The emission merge is the only other fallible step and checks its
+        // shapes before adding, so doing it first keeps `self` unchanged on error.
+        self.emission.merge(&other.emission)?;
         self.log_likelihood += other.log_likelihood;
         for (a, b) in self.start.iter_mut().zip(&other.start) {
             *a += b;
@@ -83,7 +123,6 @@ impl<S: SufficientStatistics> ExpectedStatistics<S> {
         }
         self.n_sequences += other.n_sequences;
         self.n_frames += other.n_frames;
-        self.emission.merge(&other.emission)?;
         Ok(())
     }
 }
@@ -171,8 +210,13 @@ impl<E: Emission> Hmm<E> {
         Ok(total)
     }
 
-    /// The M-step: new parameters from expected statistics. Frozen parts are kept;
-    /// a transition row with no expected visits keeps its previous values.
+    /// The M-step: new parameters from expected statistics,
+    /// `π_i = s_i / Σ_j s_j` and `a_ij = ξ_ij / Σ_j' ξ_ij'`, then the emission's
+    /// M-step. Frozen parts are kept; a transition row with no expected visits
+    /// keeps its previous values.
+    ///
+    /// Errors (naming the vector) when `stats` is shaped for another number of
+    /// states, or holds a negative or non-finite count.
     pub fn maximise(
         &self,
         stats: &ExpectedStatistics<E::Stats>,
@@ -180,6 +224,24 @@ impl<E: Emission> Hmm<E> {
         reg: &Regularization,
     ) -> Result<(Hmm<E>, MStepReport)> {
         let s = self.n_states();
+        stats.check_shape(s).map_err(|e| match e {
+            HmmError::InvalidParameter { name, reason } => HmmError::InvalidParameter {
+                name,
+                reason: format!("{reason} for a model with {s} states"),
+            },
+            e => e,
+        })?;
+        for (name, v) in [
+            ("start statistics", &stats.start),
+            ("transition statistics", &stats.transitions),
+        ] {
+            if let Some(j) = v.iter().position(|x| !(x.is_finite() && *x >= 0.0)) {
+                return Err(HmmError::InvalidParameter {
+                    name,
+                    reason: format!("entry {j} is {}, not a finite non-negative count", v[j]),
+                });
+            }
+        }
         let mut start = self.start.clone();
         let mut transition = self.transition.clone();
         if update.start {
@@ -218,7 +280,13 @@ impl<E: Emission> Hmm<E> {
 }
 
 /// Checked settings of Baum-Welch; build with [`BaumWelch::builder`].
+///
+/// Deserialisation runs [`BaumWelchBuilder::build`]'s checks (and
+/// [`Regularization`]'s), so settings read from a file are refused with the
+/// same message as in code (e.g. `restarts = 0`, a NaN tolerance, k-bins
+/// smoothing outside `[0, 1]`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(try_from = "BaumWelchRaw")]
 pub struct BaumWelch {
     max_iter: usize,
     tol: f64,
@@ -229,6 +297,38 @@ pub struct BaumWelch {
     restarts: usize,
     seed: u64,
     threads: Option<usize>,
+}
+
+/// The serialised form of [`BaumWelch`], before validation.
+#[derive(Deserialize)]
+struct BaumWelchRaw {
+    max_iter: usize,
+    tol: f64,
+    convergence: Convergence,
+    regularization: Regularization,
+    update: Update,
+    init: Init,
+    restarts: usize,
+    seed: u64,
+    threads: Option<usize>,
+}
+
+impl TryFrom<BaumWelchRaw> for BaumWelch {
+    type Error = HmmError;
+    fn try_from(r: BaumWelchRaw) -> Result<Self> {
+        BaumWelchBuilder(BaumWelch {
+            max_iter: r.max_iter,
+            tol: r.tol,
+            convergence: r.convergence,
+            regularization: r.regularization,
+            update: r.update,
+            init: r.init,
+            restarts: r.restarts,
+            seed: r.seed,
+            threads: r.threads,
+        })
+        .build()
+    }
 }
 
 /// Builder of [`BaumWelch`]; [`BaumWelchBuilder::build`] validates once.
@@ -259,8 +359,14 @@ impl BaumWelchBuilder {
         self.0.max_iter = n;
         self
     }
-    /// Stop when the log-likelihood gain (on the [`Convergence`] scale) is below `tol`;
-    /// a decrease also stops. `f64::NEG_INFINITY` disables the test.
+    /// Stop when the gain of the objective between two E-steps (on the
+    /// [`Convergence`] scale) is below `tol`; a decrease also stops.
+    /// `f64::NEG_INFINITY` disables the test.
+    ///
+    /// The objective is `log p(X) + log prior` ([`Emission::log_prior`]), the
+    /// quantity EM increases: it is `log p(X)` itself when the regularisation
+    /// is not a prior (none, or `r·I` added after the M-step), and the
+    /// penalised objective under an inverse-Wishart prior or pseudo-counts.
     pub fn tol(mut self, tol: f64) -> Self {
         self.0.tol = tol;
         self
@@ -468,8 +574,11 @@ impl BaumWelch {
                 let stats = hmm.expected_statistics(data)?;
                 let ll = stats.log_likelihood;
                 let obj = ll + hmm.emission.log_prior(&self.regularization);
-                if let Some(prev) = log_likelihood.last() {
-                    if self.scale(data, ll) - self.scale(data, *prev) < self.tol {
+                // Test the gain of what EM increases: the penalised objective
+                // `log p(X) + log prior`. Without a prior `log_prior` is exactly 0,
+                // so `obj == ll` bit for bit and the test is the log-likelihood's.
+                if let Some(prev) = objective.last() {
+                    if self.scale(data, obj) - self.scale(data, *prev) < self.tol {
                         converged = true;
                     }
                 }

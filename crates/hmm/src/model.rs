@@ -207,18 +207,43 @@ impl<E: Emission> Hmm<E> {
         Ok(())
     }
 
-    /// Number of free parameters: `(S − 1) + S (S − 1)` for `π` and `A` plus the emission's.
+    /// Number of free parameters `p`:
+    ///
+    /// `p = (nnz(π) − 1) + Σ_i (nnz(A_i·) − 1) + p_B`,
+    ///
+    /// with `nnz` the number of non-zero entries and `p_B` the emission's
+    /// [`Emission::n_parameters`]. A zero of `π` or `A` is structural: Baum-Welch
+    /// keeps it at zero (its expected count is zero), so it is not estimated, and
+    /// each distribution's entries are tied by summing to 1. A left-right chain
+    /// with `S` states (`a_ii`, `a_{i,i+1}`, last state absorbing) and `π = e_0`
+    /// thus has `S − 1` free chain parameters instead of `S² − 1`.
+    ///
+    /// hmmlearn's `_get_n_fit_scalars_per_param` counts `(S − 1) + S (S − 1)`
+    /// whatever the zeros; for a model without zeros the two agree, and
+    /// [`Hmm::n_parameters_dense`] gives hmmlearn's count.
     pub fn n_parameters(&self) -> usize {
+        let s = self.n_states();
+        // Every row sums to 1, so it has at least one non-zero entry.
+        let free = |p: &[f64]| p.iter().filter(|v| **v != 0.0).count().saturating_sub(1);
+        free(&self.start)
+            + self.transition.chunks_exact(s).map(free).sum::<usize>()
+            + self.emission.n_parameters()
+    }
+
+    /// hmmlearn's parameter count `(S − 1) + S (S − 1) + p_B`, which also
+    /// counts the structural zeros of `π` and `A` (see [`Hmm::n_parameters`]).
+    pub fn n_parameters_dense(&self) -> usize {
         let s = self.n_states();
         (s - 1) + s * (s - 1) + self.emission.n_parameters()
     }
 
-    /// Akaike information criterion `−2 log p(X) + 2 p`.
+    /// Akaike information criterion `−2 log p(X) + 2 p`, with `p` from [`Hmm::n_parameters`].
     pub fn aic(&self, data: &SequenceSet) -> Result<f64> {
         Ok(-2.0 * self.log_likelihood_all(data)? + 2.0 * self.n_parameters() as f64)
     }
 
-    /// Bayesian information criterion `−2 log p(X) + p log N` with `N` the total number of frames.
+    /// Bayesian information criterion `−2 log p(X) + p log N` with `N` the
+    /// total number of frames and `p` from [`Hmm::n_parameters`].
     pub fn bic(&self, data: &SequenceSet) -> Result<f64> {
         Ok(-2.0 * self.log_likelihood_all(data)?
             + self.n_parameters() as f64 * (data.total_frames() as f64).ln())
