@@ -245,9 +245,12 @@ Examples:
 Input: one human frame per line: the raw values of the model's human columns, in
 the model's order (velocities are computed inside, causally). A first line with
 names is a header: then lines may hold more columns, and the human's are picked
-by name. An empty line starts a new demonstration. A malformed line is reported
-on stderr and skipped. Output: one CSV line per frame, flushed at once, after a
-header line (see `predict`). At exit, per-frame latency on stderr.";
+by name. An empty cell, `NaN` or `NA` is a missing value (the frame is used with
+what is observed). An empty or malformed line is a frame with nothing observed:
+it is reported on stderr and still predicted (from the dynamics alone). A line
+`#reset` starts a new demonstration; other lines starting with `#` are ignored.
+Output: one CSV line per input frame, flushed at once, after a header line (see
+`predict`). At exit, per-frame latency on stderr.";
 
 /// `phasekit stream`.
 #[derive(Debug, Args)]

@@ -4,6 +4,10 @@
 //! name with globs, split into the human's and the robot's, and optionally
 //! extended by first differences (`v_t = x_t − x_{t−1}`, `v_0 = 0`), computed
 //! per demonstration and therefore causally.
+//!
+//! Missing values: an empty cell, `NaN` or `NA` means "not observed" and is
+//! kept as NaN (a velocity is missing where either of its two positions is);
+//! the models evaluate such frames on their observed values. Infinity is refused.
 
 use std::path::{Path, PathBuf};
 use thiserror::Error;
@@ -118,7 +122,7 @@ pub struct Table {
     pub path: PathBuf,
     /// Column names (NPY files get `c0`, `c1`, …).
     pub columns: Vec<String>,
-    /// `rows × columns`, row-major; all finite.
+    /// `rows × columns`, row-major; finite or NaN (not observed).
     pub data: Vec<f64>,
 }
 
@@ -158,7 +162,22 @@ fn check_unique(path: &Path, columns: &[String]) -> Result<()> {
     Ok(())
 }
 
-/// Reads a CSV file with a header row; every cell must be a finite number.
+/// Parses a CSV cell: a number, or "not observed" (NaN) for an empty cell,
+/// `NaN` or `NA` (any case). `None` for anything else, including infinity.
+pub fn parse_cell(cell: &str) -> std::result::Result<f64, &'static str> {
+    let cell = cell.trim();
+    if cell.is_empty() || cell.eq_ignore_ascii_case("nan") || cell.eq_ignore_ascii_case("na") {
+        return Ok(f64::NAN);
+    }
+    match cell.parse::<f64>() {
+        Ok(v) if v.is_finite() => Ok(v),
+        Ok(_) => Err("not a finite number (infinity is refused; leave the cell empty or write NaN for a missing value)"),
+        Err(_) => Err("not a number"),
+    }
+}
+
+/// Reads a CSV file with a header row; every cell must be a finite number or
+/// missing (empty, `NaN`, `NA`).
 pub fn read_csv(path: &Path) -> Result<Table> {
     let file = std::fs::File::open(path).map_err(|e| io_err(path, e))?;
     let mut reader = csv::ReaderBuilder::new()
@@ -203,17 +222,7 @@ pub fn read_csv(path: &Path) -> Result<Table> {
                 value: cell.to_string(),
                 reason,
             };
-            let v: f64 = cell.parse().map_err(|_| {
-                bad(if cell.is_empty() {
-                    "empty cell"
-                } else {
-                    "not a number"
-                })
-            })?;
-            if !v.is_finite() {
-                return Err(bad("not a finite number"));
-            }
-            data.push(v);
+            data.push(parse_cell(cell).map_err(bad)?);
         }
     }
     if data.is_empty() {
@@ -288,14 +297,15 @@ pub fn read_npy(path: &Path) -> Result<Table> {
         }
     }
     let columns: Vec<String> = (0..cols).map(|c| format!("c{c}")).collect();
-    if let Some(i) = data.iter().position(|v| !v.is_finite()) {
+    // NaN is a missing value; infinity is refused.
+    if let Some(i) = data.iter().position(|v| v.is_infinite()) {
         return Err(DataError::BadCell {
             path: path.to_path_buf(),
             row: i / cols + 1,
             column: i % cols + 1,
             name: columns[i % cols].clone(),
             value: data[i].to_string(),
-            reason: "not a finite number",
+            reason: "not a finite number (infinity is refused; NaN marks a missing value)",
         });
     }
     Ok(Table {

@@ -166,35 +166,6 @@ pub fn subset(seed: u64, n: usize, size: usize) -> Vec<usize> {
     idx
 }
 
-/// Per-dimension mean and std of the frames of `seqs` (std 1 where constant).
-fn standardisation(seqs: &[&Vec<f64>], d: usize) -> (Vec<f64>, Vec<f64>) {
-    let mut mean = vec![0.0; d];
-    let mut n = 0.0;
-    for s in seqs {
-        for f in s.chunks_exact(d) {
-            for (m, v) in mean.iter_mut().zip(f) {
-                *m += v;
-            }
-            n += 1.0;
-        }
-    }
-    mean.iter_mut().for_each(|m| *m /= n);
-    let mut var = vec![0.0; d];
-    for s in seqs {
-        for f in s.chunks_exact(d) {
-            for ((q, v), m) in var.iter_mut().zip(f).zip(&mean) {
-                *q += (v - m).powi(2);
-            }
-        }
-    }
-    let std = var
-        .iter()
-        .map(|q| (q / n).sqrt())
-        .map(|s| if s > 0.0 { s } else { 1.0 })
-        .collect();
-    (mean, std)
-}
-
 /// Outcome of one seed of one method.
 struct SeedResult {
     mse: f64,
@@ -214,7 +185,8 @@ fn run_seed(
     let d = layout.features.len();
     let chosen: Vec<&Vec<f64>> = train_idx.iter().map(|&i| &prep.train[i]).collect();
     let (shift, scale) = if protocol.standardise {
-        standardisation(&chosen, d)
+        let s = crate::model_file::Standardisation::fit(&chosen, d);
+        (s.mean, s.std)
     } else {
         (vec![0.0; d], vec![1.0; d])
     };
@@ -254,6 +226,14 @@ fn run_seed(
             .map_err(|e| e.to_string())?;
         predict_seconds += clock.elapsed().as_secs_f64();
         for (t, f) in test.chunks_exact(d).enumerate() {
+            // A frame whose true robot position is not fully observed cannot be scored.
+            if layout
+                .robot_positions
+                .iter()
+                .any(|&j| f[layout.robot[j]].is_nan())
+            {
+                continue;
+            }
             for &j in &layout.robot_positions {
                 let k = layout.robot[j];
                 let predicted = pred.mean[t * o + j] * scale[k] + shift[k];
@@ -376,19 +356,24 @@ pub fn constant_mean_mse(prep: &Prepared, unit_scale: f64) -> f64 {
         .map(|&j| layout.robot[j])
         .collect();
     let mut mean = vec![0.0; cols.len()];
-    let mut n = 0.0;
+    let mut n = vec![0.0; cols.len()];
     for s in &prep.train {
         for f in s.chunks_exact(d) {
-            for (m, &c) in mean.iter_mut().zip(&cols) {
-                *m += f[c];
+            for ((m, n), &c) in mean.iter_mut().zip(&mut n).zip(&cols) {
+                if !f[c].is_nan() {
+                    *m += f[c];
+                    *n += 1.0;
+                }
             }
-            n += 1.0;
         }
     }
-    mean.iter_mut().for_each(|m| *m /= n);
+    mean.iter_mut().zip(&n).for_each(|(m, n)| *m /= n);
     let (mut se, mut frames) = (0.0, 0.0);
     for s in &prep.test {
         for f in s.chunks_exact(d) {
+            if cols.iter().any(|&c| f[c].is_nan()) {
+                continue;
+            }
             se += cols
                 .iter()
                 .zip(&mean)

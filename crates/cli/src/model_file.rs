@@ -32,26 +32,36 @@ pub struct Standardisation {
 }
 
 impl Standardisation {
-    /// Per-feature mean and std of all frames of `seqs` (`T × d` each).
-    pub fn fit(seqs: &[Vec<f64>], d: usize) -> Self {
+    /// Per-feature mean and std of all frames of `seqs` (`T × d` each), over
+    /// the observed values (NaN = missing is left out; a feature never
+    /// observed gets mean 0 and std 1).
+    pub fn fit<S: AsRef<[f64]>>(seqs: &[S], d: usize) -> Self {
+        let frames = || seqs.iter().flat_map(|s| s.as_ref().chunks_exact(d));
         let mut mean = vec![0.0; d];
-        let mut n = 0.0;
-        for f in seqs.iter().flat_map(|s| s.chunks_exact(d)) {
-            for (m, v) in mean.iter_mut().zip(f) {
-                *m += v;
+        let mut n = vec![0.0; d];
+        for f in frames() {
+            for k in 0..d {
+                if !f[k].is_nan() {
+                    mean[k] += f[k];
+                    n[k] += 1.0;
+                }
             }
-            n += 1.0;
         }
-        mean.iter_mut().for_each(|m| *m /= f64::max(n, 1.0));
+        mean.iter_mut()
+            .zip(&n)
+            .for_each(|(m, n)| *m /= f64::max(*n, 1.0));
         let mut var = vec![0.0; d];
-        for f in seqs.iter().flat_map(|s| s.chunks_exact(d)) {
-            for ((q, v), m) in var.iter_mut().zip(f).zip(&mean) {
-                *q += (v - m).powi(2);
+        for f in frames() {
+            for k in 0..d {
+                if !f[k].is_nan() {
+                    var[k] += (f[k] - mean[k]).powi(2);
+                }
             }
         }
         let std = var
             .iter()
-            .map(|q| (q / f64::max(n, 1.0)).sqrt())
+            .zip(&n)
+            .map(|(q, n)| (q / f64::max(*n, 1.0)).sqrt())
             .map(|s| if s > 1e-12 && s.is_finite() { s } else { 1.0 })
             .collect();
         Standardisation { mean, std }

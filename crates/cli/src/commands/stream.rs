@@ -2,6 +2,7 @@
 
 use crate::bail;
 use crate::cli::StreamArgs;
+use crate::data::parse_cell;
 use crate::error::{CliError, Result};
 use crate::model_file::ModelFile;
 use crate::output::is_broken_pipe;
@@ -53,21 +54,21 @@ fn parse_cells(line: &str) -> Vec<&str> {
 }
 
 fn looks_like_header(cells: &[&str]) -> bool {
-    cells
-        .iter()
-        .any(|c| !c.is_empty() && c.parse::<f64>().is_err())
+    cells.iter().any(|c| parse_cell(c).is_err())
 }
 
-fn skipped_note(n: usize) -> String {
+fn unobserved_note(n: usize) -> String {
     match n {
         0 => String::new(),
-        1 => " (1 line skipped)".into(),
-        n => format!(" ({n} lines skipped)"),
+        1 => " (1 malformed or empty line taken as a frame with nothing observed)".into(),
+        n => format!(" ({n} malformed or empty lines taken as frames with nothing observed)"),
     }
 }
 
 fn warn(line_no: usize, msg: &str) {
-    eprintln!("phasekit: warning: stdin line {line_no}: {msg}; line skipped");
+    eprintln!(
+        "phasekit: warning: stdin line {line_no}: {msg}; taken as a frame with nothing observed"
+    );
 }
 
 /// Runs `phasekit stream`.
@@ -94,7 +95,8 @@ pub fn run(a: &StreamArgs) -> Result<()> {
     let mut bytes = Vec::new();
     let mut raw = vec![0.0; n_in];
     let mut line_out = String::new();
-    let (mut line_no, mut frame, mut skipped) = (0usize, 0usize, 0usize);
+    let (mut line_no, mut frame, mut malformed) = (0usize, 0usize, 0usize);
+    let positional: Vec<usize> = (0..n_in).collect();
     let mut latencies: Vec<f64> = Vec::new();
     loop {
         bytes.clear();
@@ -105,91 +107,96 @@ pub fn run(a: &StreamArgs) -> Result<()> {
         }
         line_no += 1;
         let start = Instant::now();
-        let line = match std::str::from_utf8(&bytes) {
-            Ok(s) => s.trim(),
+        // A line that cannot be read is a frame with nothing observed: the
+        // filter still takes its transition step, so the robot's prediction
+        // keeps moving with the interaction and the frame count stays true.
+        let unobserved = |msg: &str, raw: &mut [f64]| {
+            warn(line_no, msg);
+            raw.fill(f64::NAN);
+        };
+        match std::str::from_utf8(&bytes).map(str::trim) {
             Err(_) => {
-                warn(line_no, "not valid UTF-8 text");
-                skipped += 1;
+                unobserved("not valid UTF-8 text", &mut raw);
+                malformed += 1;
+            }
+            Ok(line) if line.starts_with('#') => {
+                // `#reset` starts a new demonstration; other `#` lines are comments.
+                if line[1..].trim().eq_ignore_ascii_case("reset") {
+                    sp.reset();
+                    frame = 0;
+                }
                 continue;
             }
-        };
-        if line.is_empty() {
-            // A new demonstration.
-            sp.reset();
-            frame = 0;
-            continue;
-        }
-        let cells = parse_cells(line);
-        if columns.is_none() {
-            if looks_like_header(&cells) {
-                let idx: Option<Vec<usize>> = names
-                    .iter()
-                    .map(|n| cells.iter().position(|c| c == n))
-                    .collect();
-                columns = Some(match idx {
-                    Some(indices) => Columns::Named { indices, width: cells.len() },
-                    None if cells.len() == n_in => {
-                        eprintln!(
-                            "phasekit: warning: stdin header `{line}` does not name the model's human columns ({}); reading its columns in that order",
-                            names.join(", ")
-                        );
-                        Columns::Positional
+            Ok("") => {
+                unobserved("empty line", &mut raw);
+                malformed += 1;
+            }
+            Ok(line) => {
+                let cells = parse_cells(line);
+                if columns.is_none() {
+                    if looks_like_header(&cells) {
+                        let idx: Option<Vec<usize>> = names
+                            .iter()
+                            .map(|n| cells.iter().position(|c| c == n))
+                            .collect();
+                        columns = Some(match idx {
+                            Some(indices) => Columns::Named { indices, width: cells.len() },
+                            None if cells.len() == n_in => {
+                                eprintln!(
+                                    "phasekit: warning: stdin header `{line}` does not name the model's human columns ({}); reading its columns in that order",
+                                    names.join(", ")
+                                );
+                                Columns::Positional
+                            }
+                            None => bail!(
+                                "stdin line {line_no}: the header `{line}` lacks the model's human columns ({}); send them in that order, with or without a header",
+                                names.join(", ")
+                            ),
+                        });
+                        continue;
                     }
-                    None => bail!(
-                        "stdin line {line_no}: the header `{line}` lacks the model's human columns ({}); send them in that order, with or without a header",
-                        names.join(", ")
-                    ),
-                });
-                continue;
-            }
-            columns = Some(Columns::Positional);
-        }
-        let (indices, width): (Vec<usize>, usize) = match columns.as_ref() {
-            Some(Columns::Named { indices, width }) => (indices.clone(), *width),
-            _ => ((0..n_in).collect(), n_in),
-        };
-        if cells.len() != width {
-            warn(
-                line_no,
-                &format!("{} values, expected {width}", cells.len()),
-            );
-            skipped += 1;
-            continue;
-        }
-        let mut bad = None;
-        for (k, (&i, r)) in indices.iter().zip(raw.iter_mut()).enumerate() {
-            match cells[i].parse::<f64>() {
-                Ok(v) if v.is_finite() => *r = v,
-                Ok(_) => {
-                    bad = Some(format!(
-                        "column {} (`{}`) is not a finite number: {:?}",
-                        i + 1,
-                        names[k],
-                        cells[i]
-                    ));
-                    break;
+                    columns = Some(Columns::Positional);
                 }
-                Err(_) => {
-                    bad = Some(format!(
-                        "column {} (`{}`) is not a number: {:?}",
-                        i + 1,
-                        names[k],
-                        cells[i]
-                    ));
-                    break;
+                let (indices, width): (&[usize], usize) = match columns.as_ref() {
+                    Some(Columns::Named { indices, width }) => (indices, *width),
+                    _ => (&positional, n_in),
+                };
+                if cells.len() != width {
+                    unobserved(
+                        &format!("{} values, expected {width}", cells.len()),
+                        &mut raw,
+                    );
+                    malformed += 1;
+                } else {
+                    // Empty, `NaN` or `NA` cells are missing values (not warned about).
+                    let bad =
+                        indices
+                            .iter()
+                            .zip(raw.iter_mut())
+                            .enumerate()
+                            .find_map(|(k, (&i, r))| match parse_cell(cells[i]) {
+                                Ok(v) => {
+                                    *r = v;
+                                    None
+                                }
+                                Err(why) => Some(format!(
+                                    "column {} (`{}`): {why}: {:?}",
+                                    i + 1,
+                                    names[k],
+                                    cells[i]
+                                )),
+                            });
+                    if let Some(msg) = bad {
+                        unobserved(&msg, &mut raw);
+                        malformed += 1;
+                    }
                 }
             }
-        }
-        if let Some(msg) = bad {
-            warn(line_no, &msg);
-            skipped += 1;
-            continue;
         }
         let (mean, cov) = match sp.step(&raw, a.covariance) {
             Ok(x) => x,
             Err(e) => {
-                warn(line_no, &format!("prediction failed: {e}"));
-                skipped += 1;
+                eprintln!("phasekit: warning: stdin line {line_no}: prediction failed: {e}; no output for this line");
                 continue;
             }
         };
@@ -208,13 +215,13 @@ pub fn run(a: &StreamArgs) -> Result<()> {
             Some(l) => eprintln!(
                 "phasekit: {} frames{}; latency per frame: mean {:.1} µs, p50 {:.1} µs, p99 {:.1} µs, max {:.1} µs",
                 l.frames,
-                skipped_note(skipped),
+                unobserved_note(malformed),
                 l.mean,
                 l.p50,
                 l.p99,
                 l.max
             ),
-            None => eprintln!("phasekit: no frame received{}", skipped_note(skipped)),
+            None => eprintln!("phasekit: no frame received{}", unobserved_note(malformed)),
         }
     }
     Ok(())
