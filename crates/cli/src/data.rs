@@ -180,11 +180,16 @@ pub fn parse_cell(cell: &str) -> std::result::Result<f64, &'static str> {
 /// missing (empty, `NaN`, `NA`).
 pub fn read_csv(path: &Path) -> Result<Table> {
     let file = std::fs::File::open(path).map_err(|e| io_err(path, e))?;
+    read_csv_from(file, path)
+}
+
+/// [`read_csv`] from any reader; `path` names the source in errors.
+pub fn read_csv_from<R: std::io::Read>(source: R, path: &Path) -> Result<Table> {
     let mut reader = csv::ReaderBuilder::new()
         .has_headers(true)
         .flexible(true)
         .trim(csv::Trim::All)
-        .from_reader(file);
+        .from_reader(source);
     let header = reader.headers().map_err(|e| io_err(path, e))?.clone();
     if header.is_empty() || header.iter().all(|h| h.is_empty()) {
         return Err(DataError::Empty {
@@ -241,60 +246,23 @@ pub fn read_csv(path: &Path) -> Result<Table> {
 /// Reads a 2-D float NPY array (`f8` or `f4`, C or Fortran order).
 pub fn read_npy(path: &Path) -> Result<Table> {
     let bytes = std::fs::read(path).map_err(|e| io_err(path, e))?;
+    parse_npy(&bytes, path)
+}
+
+/// [`read_npy`] from the file's bytes; `path` names the source in errors.
+/// Nothing is allocated for the array before its claimed size is checked
+/// against the bytes present, so a header that lies cannot exhaust memory.
+pub fn parse_npy(bytes: &[u8], path: &Path) -> Result<Table> {
     let npy_err = |m: String| DataError::Npy {
         path: path.to_path_buf(),
         message: m,
     };
-    let npy = npyz::NpyFile::new(&bytes[..]).map_err(|e| npy_err(e.to_string()))?;
-    let shape = npy.shape().to_vec();
-    if shape.len() != 2 {
-        return Err(npy_err(format!("shape {shape:?} is not 2-D")));
-    }
-    let (rows, cols) = (shape[0] as usize, shape[1] as usize);
-    let expected = rows
-        .checked_mul(cols)
-        .filter(|n| n.saturating_mul(4) <= bytes.len())
-        .ok_or_else(|| {
-            npy_err(format!(
-                "header claims shape {rows} × {cols}, more than the file's {} bytes hold",
-                bytes.len()
-            ))
-        })?;
-    let fortran = npy.order() == npyz::Order::Fortran;
-    let values: Vec<f64> = match npy.dtype() {
-        npyz::DType::Plain(t) if t.type_char() == npyz::TypeChar::Float && t.size_field() == 8 => {
-            npy.into_vec::<f64>().map_err(|e| npy_err(e.to_string()))?
-        }
-        npyz::DType::Plain(t) if t.type_char() == npyz::TypeChar::Float && t.size_field() == 4 => {
-            npy.into_vec::<f32>()
-                .map_err(|e| npy_err(e.to_string()))?
-                .into_iter()
-                .map(f64::from)
-                .collect()
-        }
-        other => return Err(npy_err(format!("dtype {} is not a float", other.descr()))),
-    };
-    if values.len() != expected {
-        return Err(npy_err(format!(
-            "{} values for shape {rows} × {cols}",
-            values.len()
-        )));
-    }
+    let crate::npy::Array { rows, cols, data } = crate::npy::parse(bytes).map_err(npy_err)?;
     if rows == 0 || cols == 0 {
         return Err(DataError::Empty {
             path: path.to_path_buf(),
             what: "the array has no rows or no columns",
         });
-    }
-    let mut data = vec![0.0; expected];
-    for r in 0..rows {
-        for c in 0..cols {
-            data[r * cols + c] = if fortran {
-                values[c * rows + r]
-            } else {
-                values[r * cols + c]
-            };
-        }
     }
     let columns: Vec<String> = (0..cols).map(|c| format!("c{c}")).collect();
     // NaN is a missing value; infinity is refused.

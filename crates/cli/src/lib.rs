@@ -11,6 +11,7 @@ pub mod data;
 pub mod error;
 pub mod experiment;
 pub mod model_file;
+pub mod npy;
 pub mod output;
 pub mod pipeline;
 pub mod plot;

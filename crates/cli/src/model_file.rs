@@ -183,7 +183,12 @@ impl ModelFile {
     pub fn from_json(text: &str, path: &Path) -> Result<Self> {
         let p = path.display();
         let header: Header = serde_json::from_str(text).map_err(|e| {
-            let what = if e.is_eof() {
+            // A file cut in the middle of a number or a word fails on its last
+            // character rather than at "end of input": call that truncated too.
+            let end_line = 1 + text.matches('\n').count();
+            let end_col = text.len() - text.rfind('\n').map_or(0, |i| i + 1);
+            let at_end = e.line() == end_line && e.column() + 1 >= end_col;
+            let what = if e.is_eof() || (e.is_syntax() && at_end) {
                 "it is truncated or empty"
             } else {
                 "it is not valid JSON"

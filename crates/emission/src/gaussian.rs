@@ -95,14 +95,14 @@ pub struct Gaussian {
 impl TryFrom<GaussianParams> for Gaussian {
     type Error = EmissionError;
     fn try_from(p: GaussianParams) -> Result<Self> {
-        if p.dim == 0 || p.means.len() != p.n_states * p.dim {
+        // A corrupted file may claim any sizes: compare without overflowing.
+        if p.dim == 0 || p.n_states.checked_mul(p.dim) != Some(p.means.len()) {
             return Err(EmissionError::InvalidParameter {
                 name: "means",
                 reason: format!(
-                    "expected {} states × {} dims = {} values, found {}",
+                    "expected {} states × {} dims, found {} values",
                     p.n_states,
                     p.dim,
-                    p.n_states * p.dim,
                     p.means.len()
                 ),
             });
