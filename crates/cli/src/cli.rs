@@ -96,15 +96,77 @@ pub struct ColumnArgs {
     pub velocity: Option<VelocityArg>,
 }
 
+/// A number of states, or `auto`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Count {
+    /// This many.
+    Fixed(usize),
+    /// Chosen automatically.
+    Auto,
+}
+
+impl std::str::FromStr for Count {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s.trim() {
+            "auto" => Ok(Count::Auto),
+            n => n
+                .parse()
+                .map(Count::Fixed)
+                .map_err(|_| format!("`{s}` is neither a whole number nor `auto`")),
+        }
+    }
+}
+
+impl std::fmt::Display for Count {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Count::Fixed(n) => write!(f, "{n}"),
+            Count::Auto => f.write_str("auto"),
+        }
+    }
+}
+
+/// `--select` values.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum SelectArg {
+    /// Lowest BIC over 2..=--max-states.
+    Bic,
+    /// G-means (Anderson–Darling splits; gmm-tsc's mixtures only).
+    Gmeans,
+}
+
+impl From<SelectArg> for phasekit_tsc::Selector {
+    fn from(s: SelectArg) -> Self {
+        match s {
+            SelectArg::Bic => phasekit_tsc::Selector::Bic,
+            SelectArg::Gmeans => phasekit_tsc::Selector::GMeans,
+        }
+    }
+}
+
 /// Model settings shared by `fit` and `evaluate` (defaults: the paper-compatible protocol).
 #[derive(Debug, Clone, Args)]
 pub struct ModelArgs {
-    /// States of the base HMM (components of a GMM)
-    #[arg(long, value_name = "N", default_value_t = 4)]
-    pub states: usize,
-    /// States of the transition HMM λ_T (TSC-HMM); transition clusters of gmm-tsc (0 = BIC)
-    #[arg(long, value_name = "N", default_value_t = 3)]
-    pub tsc_states: usize,
+    /// States of the base HMM (components of a GMM); `auto`: chosen by --select over 2..=--max-states
+    /// (hmm, tsc-hmm*, gmm-tsc)
+    #[arg(long, value_name = "N|auto", default_value = "4")]
+    pub states: Count,
+    /// How `auto` counts are chosen: bic (HMM states and mixtures) or gmeans (gmm-tsc's mixtures)
+    #[arg(long, value_enum, value_name = "HOW", default_value = "bic")]
+    pub select: SelectArg,
+    /// Largest count an automatic choice may give
+    #[arg(long, value_name = "N", default_value_t = 10)]
+    pub max_states: usize,
+    /// States of the transition HMM λ_T (TSC-HMM); transition clusters of gmm-tsc (0 or auto: by --select)
+    #[arg(long, value_name = "N|auto", default_value = "3")]
+    pub tsc_states: Count,
+    /// gmm-tsc: prune transition clusters holding transitions of fewer than this fraction ρ of the demonstrations
+    #[arg(long, value_name = "X", default_value_t = 0.5)]
+    pub rho: f64,
+    /// gmm-tsc: sub-cluster each transition cluster by normalised time into at most N clusters (0 = off)
+    #[arg(long, value_name = "N", default_value_t = 0)]
+    pub time_clusters: usize,
     /// Dilation ±W of transition frames (TSC-HMM); frames per window (gmm-tsc)
     #[arg(long, value_name = "W", default_value_t = 2)]
     pub window: usize,
@@ -143,8 +205,11 @@ folders, pick one with --action. Columns default to the human's p1_wrist_* and t
 robot's p2_wrist_* with velocities of both (NuiSI); give --human/--robot otherwise.
 
 Methods (presets): see the list below; settings per method with NAME:key=value,...
-(keys: states, tsc-states, window, reg, max-iter, tol, restarts, seed), e.g.
-tsc-hmm:states=5,window=2. The command-line flags set the defaults of every key.";
+(keys: states, tsc-states, window, reg, max-iter, tol, restarts, seed, select,
+max-states, rho, time-clusters), e.g. tsc-hmm:states=5,window=2 or
+gmm-tsc:states=auto,select=gmeans,rho=0.6. The command-line flags set the defaults of every key.
+states=auto (--states auto) chooses the base states by BIC over 2..=max-states
+(hmm, tsc-hmm*: λ's states; gmm-tsc: its mixture, also by select=gmeans).";
 
 /// The help text after a command's options: examples, then the presets.
 fn with_presets(examples: &str) -> String {
