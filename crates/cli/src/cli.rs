@@ -343,8 +343,10 @@ two by default) and predicts every test_* demonstration from the human's frames.
 Metric: per frame, squared Euclidean error of the robot's position columns (not
 velocities) × unit-scale²; MSE = mean over frames of all test demonstrations;
 mean ± std (population) over seeds. The paired columns compare each method with
-the first one on the same seeds. --seed seeds the fits' own random choices (the
-subsets depend on the seed number only), so runs are reproducible.";
+the first and the second one on the same seeds. --seed seeds the fits' own random
+choices (the subsets depend on the seed number only), so runs are reproducible.
+Exit status 1 (after printing) when a method fails on every seed of an action, or,
+with --fail-above X, when a method's mean MSE is not finite or above X (a CI guard).";
 
 /// `phasekit evaluate`.
 #[derive(Debug, Args)]
@@ -378,12 +380,15 @@ pub struct EvaluateArgs {
     /// Factor from data units to reported units (100: metres → cm, MSE in cm²)
     #[arg(long, value_name = "X", default_value_t = 100.0)]
     pub unit_scale: f64,
-    /// Also write PREFIX.md and PREFIX.json
+    /// Also write PREFIX.md and PREFIX.json (a folder DIR/: DIR/evaluate.md and .json), both or neither
     #[arg(short, long, value_name = "PREFIX")]
     pub output: Option<PathBuf>,
-    /// What to print: md (default), json or csv
+    /// What to print: md (default, the table and the metric's definition), json or csv
     #[arg(long, value_enum, default_value = "md")]
     pub format: Format,
+    /// Exit with an error (after printing) if any method's mean MSE is not finite or above X (reported units²)
+    #[arg(long, value_name = "X")]
+    pub fail_above: Option<f64>,
 }
 
 const PLOT_EXAMPLES: &str = "\
@@ -413,9 +418,9 @@ pub enum PlotKind {
         after_help = "Example:\n  phasekit plot prediction --model m.json --data test_00.csv -o pred.svg"
     )]
     Prediction(PlotArgsCommon),
-    /// Trajectories in a 2-D feature plane with the states' and transition clusters' 2σ ellipses.
+    /// Trajectories with the 2σ ellipses of the predicting model's states (a 2-D plane or an oblique 3-D view).
     #[command(
-        after_help = "Examples:\n  phasekit plot states --model m.json --data demos/ -o states.svg\n  phasekit plot states --model m.json --data a.csv b.csv --x p1_wrist_x --y p1_wrist_y -o states.svg"
+        after_help = "Examples:\n  phasekit plot states --model m.json --data demos/ -o states.svg\n  phasekit plot states --model m.json --data a.csv b.csv --x p1_wrist_x --y p1_wrist_y -o states.svg\n  phasekit plot states --model m.json --data demos/ --view 3d -o states3d.svg\n\nThe ellipses are those of the model that predicts: a union TSC-HMM's re-trained states,\nλ_T's drawn dashed as transition states; gmm-tsc's mixture, its kept clusters dashed.\nThe 3-D view is an oblique (cabinet) projection of --x, --y (depth) and --z [default:\nthe robot's x, y, z columns], with the outlines of the projected 2σ ellipsoids."
     )]
     States(PlotStatesArgs),
 }
@@ -446,9 +451,15 @@ pub struct PlotStatesArgs {
     /// Feature on the horizontal axis [default: the robot's x column]
     #[arg(long, value_name = "FEATURE")]
     pub x: Option<String>,
-    /// Feature on the vertical axis [default: the robot's z column]
+    /// Feature on the vertical axis (2d) or in depth (3d) [default: the robot's z column (2d), y column (3d)]
     #[arg(long, value_name = "FEATURE")]
     pub y: Option<String>,
+    /// Feature pointing up in the 3-D view [default: the robot's z column]
+    #[arg(long, value_name = "FEATURE")]
+    pub z: Option<String>,
+    /// 2d: a plane of two features; 3d: an oblique view of three
+    #[arg(long, value_enum, default_value = "2d")]
+    pub view: View,
     /// The SVG file to write
     #[arg(short, long, value_name = "PATH")]
     pub output: PathBuf,
@@ -463,6 +474,17 @@ Generates two-agent interactions with known phases (idle, reach, shake, retract)
 fits hmm and tsc-hmm on 12 of them, predicts the other 4 from the human's hand,
 compares with a constant-pose baseline, checks the transitions found against the
 true phase boundaries, and writes the data, the models and three plots to the folder.";
+
+/// `plot states --view` values.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum View {
+    /// A plane of two features.
+    #[value(name = "2d")]
+    TwoD,
+    /// An oblique projection of three features.
+    #[value(name = "3d")]
+    ThreeD,
+}
 
 /// `phasekit demo`.
 #[derive(Debug, Args)]
