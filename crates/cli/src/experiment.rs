@@ -349,8 +349,9 @@ pub fn evaluate_action(
                     .iter()
                     .map(|r| r.as_ref().ok().map(|x| x.mse))
                     .collect(),
-                fit_seconds: ok.iter().map(|r| r.fit_seconds).sum::<f64>() / ok.len().max(1) as f64,
-                predict_us_per_frame: 1e6 * ok.iter().map(|r| r.predict_seconds).sum::<f64>()
+                // Folds from +0.0: `Sum` of no f64 is −0.0, printed "-0.000".
+                fit_seconds: ok.iter().fold(0.0, |a, r| a + r.fit_seconds) / ok.len().max(1) as f64,
+                predict_us_per_frame: 1e6 * ok.iter().fold(0.0, |a, r| a + r.predict_seconds)
                     / frames.max(1) as f64,
                 states: ok.first().map_or(0, |r| r.states),
             }
