@@ -243,7 +243,7 @@ impl TscSettings {
         if self.tsc_states == 0 {
             return Err(TscError::InvalidSetting {
                 name: "tsc-states",
-                reason: "the transition HMM needs at least one state".into(),
+                reason: "the transition HMM needs at least one state (tsc-states=0 or auto chooses the transition clusters of gmm-tsc only)".into(),
             });
         }
         if let Detector::WorstPrediction { fraction } = self.detector {
