@@ -96,15 +96,77 @@ pub struct ColumnArgs {
     pub velocity: Option<VelocityArg>,
 }
 
+/// A number of states, or `auto`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Count {
+    /// This many.
+    Fixed(usize),
+    /// Chosen automatically.
+    Auto,
+}
+
+impl std::str::FromStr for Count {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s.trim() {
+            "auto" => Ok(Count::Auto),
+            n => n
+                .parse()
+                .map(Count::Fixed)
+                .map_err(|_| format!("`{s}` is neither a whole number nor `auto`")),
+        }
+    }
+}
+
+impl std::fmt::Display for Count {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Count::Fixed(n) => write!(f, "{n}"),
+            Count::Auto => f.write_str("auto"),
+        }
+    }
+}
+
+/// `--select` values.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum SelectArg {
+    /// Lowest BIC over 2..=--max-states.
+    Bic,
+    /// G-means (Anderson–Darling splits; gmm-tsc's mixtures only).
+    Gmeans,
+}
+
+impl From<SelectArg> for phasekit_tsc::Selector {
+    fn from(s: SelectArg) -> Self {
+        match s {
+            SelectArg::Bic => phasekit_tsc::Selector::Bic,
+            SelectArg::Gmeans => phasekit_tsc::Selector::GMeans,
+        }
+    }
+}
+
 /// Model settings shared by `fit` and `evaluate` (defaults: the paper-compatible protocol).
 #[derive(Debug, Clone, Args)]
 pub struct ModelArgs {
-    /// States of the base HMM (components of a GMM)
-    #[arg(long, value_name = "N", default_value_t = 4)]
-    pub states: usize,
-    /// States of the transition HMM λ_T (TSC-HMM); transition clusters of gmm-tsc (0 = BIC)
-    #[arg(long, value_name = "N", default_value_t = 3)]
-    pub tsc_states: usize,
+    /// States of the base HMM (components of a GMM); `auto`: chosen by --select over 2..=--max-states
+    /// (hmm, tsc-hmm*, gmm-tsc)
+    #[arg(long, value_name = "N|auto", default_value = "4")]
+    pub states: Count,
+    /// How `auto` counts are chosen: bic (HMM states and mixtures) or gmeans (gmm-tsc's mixtures)
+    #[arg(long, value_enum, value_name = "HOW", default_value = "bic")]
+    pub select: SelectArg,
+    /// Largest count an automatic choice may give
+    #[arg(long, value_name = "N", default_value_t = 10)]
+    pub max_states: usize,
+    /// States of the transition HMM λ_T (TSC-HMM); transition clusters of gmm-tsc (0 or auto: by --select)
+    #[arg(long, value_name = "N|auto", default_value = "3")]
+    pub tsc_states: Count,
+    /// gmm-tsc: prune transition clusters holding transitions of fewer than this fraction ρ of the demonstrations
+    #[arg(long, value_name = "X", default_value_t = 0.5)]
+    pub rho: f64,
+    /// gmm-tsc: sub-cluster each transition cluster by normalised time into at most N clusters (0 = off)
+    #[arg(long, value_name = "N", default_value_t = 0)]
+    pub time_clusters: usize,
     /// Dilation ±W of transition frames (TSC-HMM); frames per window (gmm-tsc)
     #[arg(long, value_name = "W", default_value_t = 2)]
     pub window: usize,
@@ -143,8 +205,11 @@ folders, pick one with --action. Columns default to the human's p1_wrist_* and t
 robot's p2_wrist_* with velocities of both (NuiSI); give --human/--robot otherwise.
 
 Methods (presets): see the list below; settings per method with NAME:key=value,...
-(keys: states, tsc-states, window, reg, max-iter, tol, restarts, seed), e.g.
-tsc-hmm:states=5,window=2. The command-line flags set the defaults of every key.";
+(keys: states, tsc-states, window, reg, max-iter, tol, restarts, seed, select,
+max-states, rho, time-clusters), e.g. tsc-hmm:states=5,window=2 or
+gmm-tsc:states=auto,select=gmeans,rho=0.6. The command-line flags set the defaults of every key.
+states=auto (--states auto) chooses the base states by BIC over 2..=max-states
+(hmm, tsc-hmm*: λ's states; gmm-tsc: its mixture, also by select=gmeans).";
 
 /// The help text after a command's options: examples, then the presets.
 fn with_presets(examples: &str) -> String {
@@ -281,8 +346,10 @@ two by default) and predicts every test_* demonstration from the human's frames.
 Metric: per frame, squared Euclidean error of the robot's position columns (not
 velocities) × unit-scale²; MSE = mean over frames of all test demonstrations;
 mean ± std (population) over seeds. The paired columns compare each method with
-the first one on the same seeds. --seed seeds the fits' own random choices (the
-subsets depend on the seed number only), so runs are reproducible.";
+the first and the second one on the same seeds. --seed seeds the fits' own random
+choices (the subsets depend on the seed number only), so runs are reproducible.
+Exit status 1 (after printing) when a method fails on every seed of an action, or,
+with --fail-above X, when a method's mean MSE is not finite or above X (a CI guard).";
 
 /// `phasekit evaluate`.
 #[derive(Debug, Args)]
@@ -316,12 +383,15 @@ pub struct EvaluateArgs {
     /// Factor from data units to reported units (100: metres → cm, MSE in cm²)
     #[arg(long, value_name = "X", default_value_t = 100.0)]
     pub unit_scale: f64,
-    /// Also write PREFIX.md and PREFIX.json
+    /// Also write PREFIX.md and PREFIX.json (a folder DIR/: DIR/evaluate.md and .json), both or neither
     #[arg(short, long, value_name = "PREFIX")]
     pub output: Option<PathBuf>,
-    /// What to print: md (default), json or csv
+    /// What to print: md (default, the table and the metric's definition), json or csv
     #[arg(long, value_enum, default_value = "md")]
     pub format: Format,
+    /// Exit with an error (after printing) if any method's mean MSE is not finite or above X (reported units²)
+    #[arg(long, value_name = "X")]
+    pub fail_above: Option<f64>,
 }
 
 const PLOT_EXAMPLES: &str = "\
@@ -351,9 +421,9 @@ pub enum PlotKind {
         after_help = "Example:\n  phasekit plot prediction --model m.json --data test_00.csv -o pred.svg"
     )]
     Prediction(PlotArgsCommon),
-    /// Trajectories in a 2-D feature plane with the states' and transition clusters' 2σ ellipses.
+    /// Trajectories with the 2σ ellipses of the predicting model's states (a 2-D plane or an oblique 3-D view).
     #[command(
-        after_help = "Examples:\n  phasekit plot states --model m.json --data demos/ -o states.svg\n  phasekit plot states --model m.json --data a.csv b.csv --x p1_wrist_x --y p1_wrist_y -o states.svg"
+        after_help = "Examples:\n  phasekit plot states --model m.json --data demos/ -o states.svg\n  phasekit plot states --model m.json --data a.csv b.csv --x p1_wrist_x --y p1_wrist_y -o states.svg\n  phasekit plot states --model m.json --data demos/ --view 3d -o states3d.svg\n\nThe ellipses are those of the model that predicts: a union TSC-HMM's re-trained states,\nλ_T's drawn dashed as transition states; gmm-tsc's mixture, its kept clusters dashed.\nThe 3-D view is an oblique (cabinet) projection of --x, --y (depth) and --z [default:\nthe robot's x, y, z columns], with the outlines of the projected 2σ ellipsoids."
     )]
     States(PlotStatesArgs),
 }
@@ -384,9 +454,15 @@ pub struct PlotStatesArgs {
     /// Feature on the horizontal axis [default: the robot's x column]
     #[arg(long, value_name = "FEATURE")]
     pub x: Option<String>,
-    /// Feature on the vertical axis [default: the robot's z column]
+    /// Feature on the vertical axis (2d) or in depth (3d) [default: the robot's z column (2d), y column (3d)]
     #[arg(long, value_name = "FEATURE")]
     pub y: Option<String>,
+    /// Feature pointing up in the 3-D view [default: the robot's z column]
+    #[arg(long, value_name = "FEATURE")]
+    pub z: Option<String>,
+    /// 2d: a plane of two features; 3d: an oblique view of three
+    #[arg(long, value_enum, default_value = "2d")]
+    pub view: View,
     /// The SVG file to write
     #[arg(short, long, value_name = "PATH")]
     pub output: PathBuf,
@@ -401,6 +477,17 @@ Generates two-agent interactions with known phases (idle, reach, shake, retract)
 fits hmm and tsc-hmm on 12 of them, predicts the other 4 from the human's hand,
 compares with a constant-pose baseline, checks the transitions found against the
 true phase boundaries, and writes the data, the models and three plots to the folder.";
+
+/// `plot states --view` values.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum View {
+    /// A plane of two features.
+    #[value(name = "2d")]
+    TwoD,
+    /// An oblique projection of three features.
+    #[value(name = "3d")]
+    ThreeD,
+}
 
 /// `phasekit demo`.
 #[derive(Debug, Args)]

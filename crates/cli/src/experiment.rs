@@ -10,7 +10,7 @@
 
 use crate::data::{Action, FeatureSpec, Layout};
 use phasekit_emission::{Frames, SequenceSet};
-use phasekit_tsc::{Method, PresetOptions, Roles};
+use phasekit_tsc::{Method, PresetOptions, Roles, Selector};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
@@ -26,8 +26,10 @@ pub struct NamedMethod {
     pub method: Method,
 }
 
-/// Parses `NAME[:key=value,...]` (keys: `states`, `tsc-states`, `window`, `reg`,
-/// `max-iter`, `tol`, `restarts`, `seed`) on top of `defaults`.
+/// Parses `NAME[:key=value,...]` on top of `defaults`. Keys: `states` (a number or
+/// `auto`), `tsc-states` (a number; `auto` or 0 for gmm-tsc's automatic transition
+/// clusters), `window`, `reg`, `max-iter`, `tol`, `restarts`, `seed`, `select`
+/// (`bic`|`gmeans`), `max-states`, `rho`, `time-clusters`. The preset checks the result.
 pub fn parse_method(spec: &str, defaults: &PresetOptions) -> Result<NamedMethod, String> {
     let (name, rest) = spec.split_once(':').unwrap_or((spec, ""));
     let mut o = defaults.clone();
@@ -37,7 +39,12 @@ pub fn parse_method(spec: &str, defaults: &PresetOptions) -> Result<NamedMethod,
             .ok_or_else(|| format!("`{kv}` in `{spec}` is not key=value"))?;
         let bad = |e: &dyn std::fmt::Display| format!("`{kv}` in `{spec}`: {e}");
         match k {
-            "states" => o.states = v.parse().map_err(|e| bad(&e))?,
+            "states" if v == "auto" => o.auto_states = true,
+            "states" => {
+                o.states = v.parse().map_err(|e| bad(&e))?;
+                o.auto_states = false;
+            }
+            "tsc-states" if v == "auto" => o.tsc_states = 0,
             "tsc-states" => o.tsc_states = v.parse().map_err(|e| bad(&e))?,
             "window" => o.window = v.parse().map_err(|e| bad(&e))?,
             "reg" => o.reg = v.parse().map_err(|e| bad(&e))?,
@@ -45,6 +52,10 @@ pub fn parse_method(spec: &str, defaults: &PresetOptions) -> Result<NamedMethod,
             "tol" => o.tol = v.parse().map_err(|e| bad(&e))?,
             "restarts" => o.restarts = v.parse().map_err(|e| bad(&e))?,
             "seed" => o.seed = v.parse().map_err(|e| bad(&e))?,
+            "select" => o.select = Selector::parse(v).map_err(|e| bad(&e))?,
+            "max-states" => o.max_states = v.parse().map_err(|e| bad(&e))?,
+            "rho" => o.rho = v.parse().map_err(|e| bad(&e))?,
+            "time-clusters" => o.time_clusters = v.parse().map_err(|e| bad(&e))?,
             other => return Err(format!("unknown key `{other}` in `{spec}`")),
         }
     }
@@ -318,8 +329,9 @@ pub fn evaluate_action(
                     .iter()
                     .map(|r| r.as_ref().ok().map(|x| x.mse))
                     .collect(),
-                fit_seconds: ok.iter().map(|r| r.fit_seconds).sum::<f64>() / ok.len().max(1) as f64,
-                predict_us_per_frame: 1e6 * ok.iter().map(|r| r.predict_seconds).sum::<f64>()
+                // Folds from +0.0: `Sum` of no f64 is −0.0, printed "-0.000".
+                fit_seconds: ok.iter().fold(0.0, |a, r| a + r.fit_seconds) / ok.len().max(1) as f64,
+                predict_us_per_frame: 1e6 * ok.iter().fold(0.0, |a, r| a + r.predict_seconds)
                     / frames.max(1) as f64,
                 states: ok.first().map_or(0, |r| r.states),
             }

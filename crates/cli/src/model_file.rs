@@ -248,6 +248,10 @@ impl ModelFile {
             return Err(CliError::new("roles and layout disagree"));
         }
         self.roles.check(d)?;
+        // The model's parts must agree (e.g. a union composition needs its union HMM),
+        // and its recorded settings must be valid ones.
+        self.model.validate()?;
+        self.method.settings.validate()?;
         let hv = matches!(
             l.velocity,
             crate::data::Velocity::Both | crate::data::Velocity::Human

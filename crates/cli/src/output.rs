@@ -12,6 +12,18 @@ pub fn write_atomic(
     path: &Path,
     write: impl FnOnce(&mut dyn Write) -> std::io::Result<()>,
 ) -> Result<()> {
+    let tmp = prepare(path, write)?;
+    tmp.persist(path)
+        .map_err(|e| CliError::new(format!("{}: cannot write: {}", path.display(), e.error)))?;
+    Ok(())
+}
+
+/// Writes the complete content of `path` to a synced temporary file beside it
+/// (deleted when dropped), ready to be renamed over `path`.
+fn prepare(
+    path: &Path,
+    write: impl FnOnce(&mut dyn Write) -> std::io::Result<()>,
+) -> Result<tempfile::NamedTempFile> {
     let dir = match path.parent() {
         Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
         _ => PathBuf::from("."),
@@ -57,7 +69,45 @@ pub fn write_atomic(
         std::fs::set_permissions(tmp.path(), std::fs::Permissions::from_mode(mode))
             .map_err(|e| err(&e))?;
     }
-    tmp.persist(path).map_err(|e| err(&e.error))?;
+    Ok(tmp)
+}
+
+/// Writes several files as one set: every content first goes to a complete, synced
+/// temporary file beside its destination; only when all are written are they renamed
+/// over their destinations, one after the other. An error (or an interruption) while
+/// writing leaves none of the new files; should a rename fail, the files of the set
+/// already renamed that did not exist before are removed again.
+pub fn write_files_atomic(files: &[(PathBuf, String)]) -> Result<()> {
+    let mut seen = std::collections::HashSet::new();
+    for (p, _) in files {
+        if !seen.insert(p) {
+            return Err(CliError::new(format!(
+                "{}: would be written twice",
+                p.display()
+            )));
+        }
+    }
+    let temps = files
+        .iter()
+        .map(|(p, text)| prepare(p, |w| w.write_all(text.as_bytes())))
+        .collect::<Result<Vec<_>>>()?;
+    let mut created = Vec::new();
+    for (tmp, (path, _)) in temps.into_iter().zip(files) {
+        let existed = path.exists();
+        if let Err(e) = tmp.persist(path) {
+            for p in &created {
+                let _ = std::fs::remove_file(p);
+            }
+            return Err(CliError::new(format!(
+                "{}: cannot write: {}",
+                path.display(),
+                e.error
+            )));
+        }
+        if !existed {
+            created.push(path.clone());
+        }
+    }
     Ok(())
 }
 

@@ -3,8 +3,9 @@
 //! * [`segmentation_svg`]: one demonstration over time, its states as colour
 //!   bands, transition frames marked (coloured by transition cluster);
 //! * [`prediction_svg`]: predicted vs true robot positions with ±2σ bands;
-//! * [`states_svg`]: trajectories in a plane of two features with the 2σ
-//!   ellipses of the states' and the transition clusters' Gaussians.
+//! * [`states_svg`] / [`states_svg_projected`]: trajectories in a plane of two
+//!   features, or an oblique 3-D view of three, with the 2σ outlines of the
+//!   predicting model's Gaussians (transition states and clusters dashed).
 
 use crate::data::Table;
 use crate::error::{CliError, Result};
@@ -12,6 +13,7 @@ use crate::model_file::ModelFile;
 use crate::pipeline::{joint_features_raw, predict_table, predictor, segment_table};
 use phasekit_emission::Gaussian;
 use phasekit_tsc::Model;
+use plotters::element::DashedPathElement;
 use plotters::prelude::*;
 
 /// Colours of states (Tableau 10).
@@ -325,7 +327,7 @@ pub struct Ellipse {
     pub cov: [f64; 3],
     /// Legend label.
     pub label: String,
-    /// Whether it is a transition cluster.
+    /// Whether it is a transition state (TSC-HMM) or transition cluster (gmm-tsc).
     pub transition: bool,
     /// Index within its kind.
     pub index: usize,
@@ -353,36 +355,122 @@ impl Ellipse {
     }
 }
 
+/// A linear map from features to the picture's plane: `(u, v) = P x` over the
+/// features `dims`, `P` a 2 × `dims.len()` matrix.
+///
+/// A Gaussian `N(μ, Σ)` maps to `N(Pμ, PΣPᵀ)`, and the outline of the projected
+/// `k`σ ellipsoid `{x : (x − μ)ᵀ Σ⁻¹ (x − μ) ≤ k²}` is exactly the `k`σ ellipse of
+/// that projected Gaussian, so ellipsoids are drawn by their projected outlines.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Projection {
+    /// Feature indices.
+    pub dims: Vec<usize>,
+    /// Rows of `P`, one weight per entry of `dims`.
+    pub rows: [Vec<f64>; 2],
+}
+
+/// Cabinet projection: depth drawn at half scale, 30° from the horizontal.
+const OBLIQUE_DEPTH: f64 = 0.5;
+const OBLIQUE_ANGLE_DEG: f64 = 30.0;
+
+impl Projection {
+    /// The plane of features `x` (horizontal) and `y` (vertical).
+    pub fn plane(x: usize, y: usize) -> Self {
+        Projection {
+            dims: vec![x, y],
+            rows: [vec![1.0, 0.0], vec![0.0, 1.0]],
+        }
+    }
+
+    /// An oblique (cabinet) view of features `x`, `y` (depth) and `z` (up):
+    /// `u = x + ½ cos 30° · y`, `v = z + ½ sin 30° · y`.
+    pub fn oblique(x: usize, y: usize, z: usize) -> Self {
+        let a = OBLIQUE_ANGLE_DEG.to_radians();
+        Projection {
+            dims: vec![x, y, z],
+            rows: [
+                vec![1.0, OBLIQUE_DEPTH * a.cos(), 0.0],
+                vec![0.0, OBLIQUE_DEPTH * a.sin(), 1.0],
+            ],
+        }
+    }
+
+    /// Whether this is a 3-D view.
+    pub fn is_3d(&self) -> bool {
+        self.dims.len() == 3
+    }
+
+    /// The picture point of a full feature vector.
+    pub fn point(&self, x: &[f64]) -> (f64, f64) {
+        let at = |r: &[f64]| r.iter().zip(&self.dims).map(|(w, &k)| w * x[k]).sum();
+        (at(&self.rows[0]), at(&self.rows[1]))
+    }
+
+    /// The picture point of the coordinates `c` along `dims`.
+    fn point_of(&self, c: &[f64]) -> (f64, f64) {
+        let at = |r: &[f64]| r.iter().zip(c).map(|(w, v)| w * v).sum();
+        (at(&self.rows[0]), at(&self.rows[1]))
+    }
+
+    /// `P μ` and `P Σ Pᵀ` of a Gaussian given on `dims` (mean and covariance in data units).
+    fn gaussian(&self, mean: &[f64], cov: &[f64]) -> ([f64; 2], [f64; 3]) {
+        let n = self.dims.len();
+        let (u, v) = self.point_of(mean);
+        let quad = |a: &[f64], b: &[f64]| {
+            (0..n)
+                .flat_map(|i| (0..n).map(move |j| a[i] * cov[i * n + j] * b[j]))
+                .sum::<f64>()
+        };
+        let (r0, r1) = (&self.rows[0], &self.rows[1]);
+        ([u, v], [quad(r0, r0), quad(r0, r1), quad(r1, r1)])
+    }
+}
+
+/// Gaussians `take` of `g` (model units), in data units, projected; those at
+/// positions ≥ `first_transition` of `take` are transition states/clusters.
 fn gaussians(
     g: &Gaussian,
     take: &[usize],
-    dims: [usize; 2],
+    first_transition: usize,
+    proj: &Projection,
     mf: &ModelFile,
-    transition: bool,
+    transition_word: &str,
 ) -> Vec<Ellipse> {
-    let (sx, sy, mx, my) = match &mf.standardisation {
-        Some(s) => (
-            s.std[dims[0]],
-            s.std[dims[1]],
-            s.mean[dims[0]],
-            s.mean[dims[1]],
-        ),
-        None => (1.0, 1.0, 0.0, 0.0),
-    };
+    let (scale, shift): (Vec<f64>, Vec<f64>) = proj
+        .dims
+        .iter()
+        .map(|&k| match &mf.standardisation {
+            Some(s) => (s.std[k], s.mean[k]),
+            None => (1.0, 0.0),
+        })
+        .unzip();
+    let n = proj.dims.len();
     take.iter()
         .enumerate()
-        .map(|(index, &i)| {
+        .map(|(pos, &i)| {
             let m = g.mean(i);
             let c = g.covariance(i);
+            let mean: Vec<f64> = (0..n)
+                .map(|a| m[proj.dims[a]] * scale[a] + shift[a])
+                .collect();
+            let mut cov = vec![0.0; n * n];
+            for a in 0..n {
+                for b in 0..n {
+                    cov[a * n + b] = c[(proj.dims[a], proj.dims[b])] * scale[a] * scale[b];
+                }
+            }
+            let (mean, cov) = proj.gaussian(&mean, &cov);
+            let transition = pos >= first_transition;
+            let index = if transition {
+                pos - first_transition
+            } else {
+                pos
+            };
             Ellipse {
-                mean: [m[dims[0]] * sx + mx, m[dims[1]] * sy + my],
-                cov: [
-                    c[(dims[0], dims[0])] * sx * sx,
-                    c[(dims[0], dims[1])] * sx * sy,
-                    c[(dims[1], dims[1])] * sy * sy,
-                ],
+                mean,
+                cov,
                 label: if transition {
-                    format!("transition cluster {index}")
+                    format!("{transition_word} {index}")
                 } else {
                     format!("state {index}")
                 },
@@ -393,42 +481,78 @@ fn gaussians(
         .collect()
 }
 
-/// The states' and transition clusters' Gaussians of a model, projected on two features.
-pub fn model_ellipses(mf: &ModelFile, dims: [usize; 2]) -> Vec<Ellipse> {
+/// The Gaussians of the model that predicts, projected: an HMM's states; a union
+/// TSC-HMM's re-estimated states, `λ_T`'s marked as transition states; a gated
+/// TSC-HMM's `λ` and `λ_T` states; a GMM's components; gmm-tsc's predicting mixture,
+/// its last components (the kept clusters, re-trained) marked as transition clusters.
+pub fn model_ellipses_projected(mf: &ModelFile, proj: &Projection) -> Vec<Ellipse> {
     let all = |n: usize| (0..n).collect::<Vec<_>>();
     match &mf.model {
-        Model::Hmm(h) => gaussians(h.emission(), &all(h.n_states()), dims, mf, false),
+        Model::Hmm(h) => gaussians(h.emission(), &all(h.n_states()), usize::MAX, proj, mf, ""),
         Model::TscHmm { model, .. } => {
-            let mut v = gaussians(
-                model.base.emission(),
-                &all(model.base.n_states()),
-                dims,
-                mf,
-                false,
-            );
-            v.extend(gaussians(
-                model.transition.emission(),
-                &all(model.transition.n_states()),
-                dims,
-                mf,
-                true,
-            ));
-            v
+            let sb = model.base.n_states();
+            match &model.union {
+                Some(u) => gaussians(
+                    u.emission(),
+                    &all(u.n_states()),
+                    sb,
+                    proj,
+                    mf,
+                    "transition state",
+                ),
+                None => {
+                    let mut v =
+                        gaussians(model.base.emission(), &all(sb), usize::MAX, proj, mf, "");
+                    v.extend(gaussians(
+                        model.transition.emission(),
+                        &all(model.transition.n_states()),
+                        0,
+                        proj,
+                        mf,
+                        "transition state",
+                    ));
+                    v
+                }
+            }
         }
-        Model::Gmm(g) => gaussians(g.components(), &all(g.n_components()), dims, mf, false),
+        Model::Gmm(g) => gaussians(
+            g.components(),
+            &all(g.n_components()),
+            usize::MAX,
+            proj,
+            mf,
+            "",
+        ),
         Model::GmmTsc { tsc, mixture } => {
-            let base = mixture.n_components() - tsc.kept.len();
-            let mut v = gaussians(mixture.components(), &all(base), dims, mf, false);
-            v.extend(gaussians(
-                tsc.transition_mixture.components(),
-                &tsc.kept,
-                dims,
+            // The model file was validated: the mixture has more components than kept clusters.
+            let base = mixture.n_components().saturating_sub(tsc.kept.len());
+            gaussians(
+                mixture.components(),
+                &all(mixture.n_components()),
+                base,
+                proj,
                 mf,
-                true,
-            ));
-            v
+                "transition cluster",
+            )
         }
     }
+}
+
+/// The model's Gaussians projected on the plane of two features (see [`model_ellipses_projected`]).
+pub fn model_ellipses(mf: &ModelFile, dims: [usize; 2]) -> Vec<Ellipse> {
+    model_ellipses_projected(mf, &Projection::plane(dims[0], dims[1]))
+}
+
+/// The robot's position columns ending in `x`, `y`, `z`, if it has all three.
+pub fn default_xyz(mf: &ModelFile) -> Option<[usize; 3]> {
+    let l = &mf.layout;
+    let pos: Vec<usize> = l.robot_positions.iter().map(|&j| l.robot[j]).collect();
+    let find = |c: char| {
+        pos.iter()
+            .copied()
+            .find(|k| l.features[*k].to_ascii_lowercase().ends_with(c))
+    };
+    Some([find('x')?, find('y')?, find('z')?])
 }
 
 /// Default plane of `plot states`: the robot's `…x` and `…z` position columns, or its first two, or the first two features.
@@ -464,33 +588,81 @@ pub fn feature_index(mf: &ModelFile, name: &str) -> Result<usize> {
 
 /// Trajectories and Gaussians in the plane of features `dims`, as SVG.
 pub fn states_svg(mf: &ModelFile, tables: &[Table], dims: [usize; 2]) -> Result<String> {
+    states_svg_projected(mf, tables, &Projection::plane(dims[0], dims[1]))
+}
+
+/// Trajectories and the 2σ outlines of the predicting model's Gaussians under a
+/// projection (a plane of two features, or an oblique 3-D view), as SVG.
+pub fn states_svg_projected(mf: &ModelFile, tables: &[Table], proj: &Projection) -> Result<String> {
     let d = mf.layout.features.len();
-    let trajs: Vec<Vec<(f64, f64)>> = tables
+    let raw: Vec<Vec<f64>> = tables
         .iter()
-        .map(|t| {
-            joint_features_raw(mf, t).map(|j| {
-                j.chunks_exact(d)
-                    .map(|f| (f[dims[0]], f[dims[1]]))
-                    .collect()
-            })
-        })
+        .map(|t| joint_features_raw(mf, t))
         .collect::<Result<_>>()?;
-    let ellipses = model_ellipses(mf, dims);
+    let trajs: Vec<Vec<(f64, f64)>> = raw
+        .iter()
+        .map(|j| j.chunks_exact(d).map(|f| proj.point(f)).collect())
+        .collect();
+    let ellipses = model_ellipses_projected(mf, proj);
     let contours: Vec<Vec<(f64, f64)>> = ellipses.iter().map(|e| e.contour(2.0, 96)).collect();
-    let pts = || trajs.iter().flatten().chain(contours.iter().flatten());
-    let (x0, x1) = pts().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| {
+    // The 3-D view's axes: from the data's lowest corner along each feature to its range.
+    let axes: Vec<(String, (f64, f64), (f64, f64))> = if proj.is_3d() {
+        let range = |k: usize| {
+            raw.iter()
+                .flat_map(|j| j.chunks_exact(d).map(move |f| f[k]))
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
+                    (a.min(v), b.max(v))
+                })
+        };
+        let r: Vec<(f64, f64)> = proj.dims.iter().map(|&k| range(k)).collect();
+        let lo: Vec<f64> = r.iter().map(|x| x.0).collect();
+        (0..3)
+            .map(|a| {
+                let mut hi = lo.clone();
+                hi[a] = r[a].1;
+                (
+                    mf.layout.features[proj.dims[a]].clone(),
+                    proj.point_of(&lo),
+                    proj.point_of(&hi),
+                )
+            })
+            .collect()
+    } else {
+        Vec::new()
+    };
+    let pts = || {
+        trajs
+            .iter()
+            .flatten()
+            .chain(contours.iter().flatten())
+            .chain(axes.iter().flat_map(|a| [&a.1, &a.2]))
+    };
+    let (mut x0, mut x1) = pts().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| {
         (a.min(p.0), b.max(p.0))
     });
-    let (y0, y1) = pts().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| {
+    let (mut y0, mut y1) = pts().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| {
         (a.min(p.1), b.max(p.1))
     });
-    let names = [&mf.layout.features[dims[0]], &mf.layout.features[dims[1]]];
+    let (width, height) = (900u32, 820u32);
+    if proj.is_3d() && x1 > x0 && y1 > y0 {
+        // Equal scale on both picture axes, or the projected ellipsoids are distorted.
+        let (pw, ph) = (f64::from(width - 110), f64::from(height - 90));
+        let per_px = ((x1 - x0) / pw).max((y1 - y0) / ph);
+        let (cx, cy) = (0.5 * (x0 + x1), 0.5 * (y0 + y1));
+        (x0, x1) = (cx - 0.5 * per_px * pw, cx + 0.5 * per_px * pw);
+        (y0, y1) = (cy - 0.5 * per_px * ph, cy + 0.5 * per_px * ph);
+    }
     let mut svg = String::new();
     {
-        let root = SVGBackend::with_string(&mut svg, (900, 820)).into_drawing_area();
+        let root = SVGBackend::with_string(&mut svg, (width, height)).into_drawing_area();
         root.fill(&WHITE).map_err(draw_err)?;
+        let view = if proj.is_3d() {
+            "oblique 3-D view, 2σ ellipsoid outlines"
+        } else {
+            "2σ ellipses"
+        };
         let title = format!(
-            "{} — 2σ ellipses of the states and transition clusters, {} demonstration{}",
+            "{} — {view} of the predicting model's states, {} demonstration{}",
             mf.method.spec,
             tables.len(),
             if tables.len() == 1 { "" } else { "s" }
@@ -502,12 +674,41 @@ pub fn states_svg(mf: &ModelFile, tables: &[Table], dims: [usize; 2]) -> Result<
             .y_label_area_size(70)
             .build_cartesian_2d(padded(x0, x1), padded(y0, y1))
             .map_err(draw_err)?;
-        chart
-            .configure_mesh()
-            .x_desc(names[0].as_str())
-            .y_desc(names[1].as_str())
-            .draw()
-            .map_err(draw_err)?;
+        if proj.is_3d() {
+            // Picture coordinates mix three features: no ticks, drawn axes instead.
+            chart
+                .configure_mesh()
+                .disable_mesh()
+                .disable_axes()
+                .draw()
+                .map_err(draw_err)?;
+            for (name, from, to) in &axes {
+                chart
+                    .draw_series(std::iter::once(PathElement::new(
+                        vec![*from, *to],
+                        BLACK.stroke_width(2),
+                    )))
+                    .map_err(draw_err)?;
+                chart
+                    .draw_series(std::iter::once(Text::new(
+                        name.clone(),
+                        *to,
+                        ("sans-serif", 14).into_font().color(&BLACK),
+                    )))
+                    .map_err(draw_err)?;
+            }
+        } else {
+            let names = [
+                &mf.layout.features[proj.dims[0]],
+                &mf.layout.features[proj.dims[1]],
+            ];
+            chart
+                .configure_mesh()
+                .x_desc(names[0].as_str())
+                .y_desc(names[1].as_str())
+                .draw()
+                .map_err(draw_err)?;
+        }
         let grey = RGBColor(150, 150, 150);
         for (i, tr) in trajs.iter().enumerate() {
             let s = chart
@@ -537,23 +738,46 @@ pub fn states_svg(mf: &ModelFile, tables: &[Table], dims: [usize; 2]) -> Result<
             chart
                 .draw_series(std::iter::once(Polygon::new(c.clone(), fill.filled())))
                 .map_err(draw_err)?;
-            chart
-                .draw_series(std::iter::once(PathElement::new(
-                    c.clone(),
-                    colour.stroke_width(width),
-                )))
-                .map_err(draw_err)?
-                .label(e.label.clone())
-                .legend(move |(x, y)| {
-                    PathElement::new(vec![(x, y), (x + 14, y)], colour.stroke_width(width))
-                });
-            chart
-                .draw_series(std::iter::once(Cross::new(
-                    (e.mean[0], e.mean[1]),
-                    4,
-                    colour.stroke_width(2),
-                )))
-                .map_err(draw_err)?;
+            if e.transition {
+                // Transition states and clusters: dashed outline, triangle at the mean.
+                chart
+                    .draw_series(std::iter::once(DashedPathElement::new(
+                        c.clone(),
+                        8,
+                        5,
+                        colour.stroke_width(width),
+                    )))
+                    .map_err(draw_err)?
+                    .label(e.label.clone())
+                    .legend(move |(x, y)| {
+                        PathElement::new(vec![(x, y), (x + 14, y)], colour.stroke_width(width))
+                    });
+                chart
+                    .draw_series(std::iter::once(TriangleMarker::new(
+                        (e.mean[0], e.mean[1]),
+                        5,
+                        colour.filled(),
+                    )))
+                    .map_err(draw_err)?;
+            } else {
+                chart
+                    .draw_series(std::iter::once(PathElement::new(
+                        c.clone(),
+                        colour.stroke_width(width),
+                    )))
+                    .map_err(draw_err)?
+                    .label(e.label.clone())
+                    .legend(move |(x, y)| {
+                        PathElement::new(vec![(x, y), (x + 14, y)], colour.stroke_width(width))
+                    });
+                chart
+                    .draw_series(std::iter::once(Cross::new(
+                        (e.mean[0], e.mean[1]),
+                        4,
+                        colour.stroke_width(2),
+                    )))
+                    .map_err(draw_err)?;
+            }
         }
         chart
             .configure_series_labels()
@@ -571,6 +795,62 @@ pub fn states_svg(mf: &ModelFile, tables: &[Table], dims: [usize; 2]) -> Result<
 #[cfg(test)]
 mod tests {
     use super::Ellipse;
+
+    #[test]
+    fn projected_gaussian_outline_is_the_shadow_of_the_ellipsoid() {
+        use super::Projection;
+        // An ellipsoid's k-σ outline under a linear map P is the k-σ ellipse of N(Pμ, PΣPᵀ):
+        // every point of the outline is the image of a point on the ellipsoid, and the image
+        // of every ellipsoid point lies inside it.
+        let p = Projection::oblique(0, 1, 2);
+        let mean = [0.3, -0.2, 1.0];
+        let cov = [2.0, 0.4, 0.1, 0.4, 1.0, -0.3, 0.1, -0.3, 0.5];
+        let (m, c) = p.gaussian(&mean, &cov);
+        assert_eq!(
+            m,
+            [
+                0.3 + 0.5 * 30f64.to_radians().cos() * -0.2,
+                1.0 + 0.5 * 30f64.to_radians().sin() * -0.2
+            ]
+        );
+        let l = nalgebra_free_cholesky(&cov);
+        let inv_det = 1.0 / (c[0] * c[2] - c[1] * c[1]);
+        let mut max_m: f64 = 0.0;
+        for i in 0..40 {
+            for j in 0..20 {
+                let (th, ph) = (
+                    i as f64 / 40.0 * std::f64::consts::TAU,
+                    j as f64 / 19.0 * std::f64::consts::PI,
+                );
+                let z = [ph.sin() * th.cos(), ph.sin() * th.sin(), ph.cos()];
+                let x: Vec<f64> = (0..3)
+                    .map(|r| mean[r] + 2.0 * (0..3).map(|k| l[r * 3 + k] * z[k]).sum::<f64>())
+                    .collect();
+                let (u, v) = p.point(&x);
+                let (du, dv) = (u - m[0], v - m[1]);
+                let maha = inv_det * (c[2] * du * du - 2.0 * c[1] * du * dv + c[0] * dv * dv);
+                assert!(maha <= 4.0 + 1e-9, "{maha}");
+                max_m = max_m.max(maha);
+            }
+        }
+        assert!(max_m > 3.9, "the outline is reached: {max_m}");
+    }
+
+    /// Lower Cholesky factor of a 3×3 SPD matrix.
+    fn nalgebra_free_cholesky(a: &[f64]) -> Vec<f64> {
+        let mut l = vec![0.0; 9];
+        for i in 0..3 {
+            for j in 0..=i {
+                let s: f64 = (0..j).map(|k| l[i * 3 + k] * l[j * 3 + k]).sum();
+                l[i * 3 + j] = if i == j {
+                    (a[i * 3 + i] - s).sqrt()
+                } else {
+                    (a[i * 3 + j] - s) / l[j * 3 + j]
+                };
+            }
+        }
+        l
+    }
 
     #[test]
     fn two_sigma_contour_of_a_rotated_gaussian() {

@@ -750,7 +750,7 @@ fn plots_are_written() {
         .assert()
         .success();
     let text = std::fs::read_to_string(&svg).unwrap();
-    assert!(text.contains("transition cluster 0") && text.contains("state 3"));
+    assert!(text.contains("transition state 0") && text.contains("state 3"));
     phasekit()
         .args(["plot", "states", "--x", "nope", "--model"])
         .arg(&model)
@@ -790,4 +790,784 @@ fn every_command_has_help_with_examples() {
         .assert()
         .success()
         .stdout(predicate::str::contains("phasekit demo"));
+}
+
+/// The model file's JSON without the parts that legitimately differ between two fits
+/// of the same data (the clock).
+fn model_json(path: &Path) -> serde_json::Value {
+    let mut v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
+    v["fit"]["fit_seconds"] = serde_json::Value::Null;
+    v
+}
+
+/// A minimal NPY v1.0 file: little-endian f8, C order, `rows × cols`.
+fn write_npy(path: &Path, rows: usize, cols: usize, data: &[f64]) {
+    let mut header =
+        format!("{{'descr': '<f8', 'fortran_order': False, 'shape': ({rows}, {cols}), }}");
+    // Magic (6) + version (2) + length (2) + header, padded with spaces to 64, ending in \n.
+    while (10 + header.len() + 1) % 64 != 0 {
+        header.push(' ');
+    }
+    header.push('\n');
+    let mut bytes = b"\x93NUMPY\x01\x00".to_vec();
+    bytes.extend_from_slice(&(header.len() as u16).to_le_bytes());
+    bytes.extend_from_slice(header.as_bytes());
+    for v in data {
+        bytes.extend_from_slice(&v.to_le_bytes());
+    }
+    std::fs::write(path, bytes).unwrap();
+}
+
+#[test]
+fn npy_input_fits_the_same_model_as_the_same_data_in_csv() {
+    let dir = tempfile::tempdir().unwrap();
+    let (csv, npy) = (dir.path().join("csv"), dir.path().join("npy"));
+    std::fs::create_dir(&csv).unwrap();
+    std::fs::create_dir(&npy).unwrap();
+    // NPY columns are named c0, c1, …: the CSV twin uses the same names.
+    let header = "c0,c1,c2,c3,c4,c5";
+    for (i, demo) in synthetic::generate(6, 8).iter().enumerate() {
+        write_csv(
+            &csv.join(format!("train_{i:02}.csv")),
+            header,
+            &rows_of(&demo.frames),
+        );
+        write_npy(
+            &npy.join(format!("train_{i:02}.npy")),
+            demo.frames.len() / 6,
+            6,
+            &demo.frames,
+        );
+    }
+    let fit_dir = |data: &Path, out: &Path| {
+        phasekit()
+            .args([
+                "fit", "--method", TSC, "--human", "c0,c1,c2", "--robot", "c[3-5]", "--data",
+            ])
+            .arg(data)
+            .arg("-o")
+            .arg(out)
+            .assert()
+            .success();
+    };
+    let (a, b) = (dir.path().join("a.json"), dir.path().join("b.json"));
+    fit_dir(&csv, &a);
+    fit_dir(&npy, &b);
+    let (ja, jb) = (model_json(&a), model_json(&b));
+    assert_eq!(
+        ja["layout"]["robot_columns"],
+        serde_json::json!(["c3", "c4", "c5"])
+    );
+    assert!(ja == jb, "the NPY and the CSV data give the same model");
+}
+
+#[test]
+fn velocity_options_and_glob_lists_select_the_features() {
+    let (dir, data) = dataset();
+    let test = data.join("test_00.csv");
+    for (which, features, robot) in [
+        ("both", 12, 6),
+        ("human", 9, 3),
+        ("robot", 9, 6),
+        ("none", 6, 3),
+    ] {
+        let model = dir.path().join(format!("{which}.json"));
+        phasekit()
+            .args(["fit", "--method", "hmm", "--velocity", which, "--data"])
+            .arg(&data)
+            .arg("-o")
+            .arg(&model)
+            .assert()
+            .success();
+        let mf = ModelFile::load(&model).unwrap();
+        let f = &mf.layout.features;
+        assert_eq!(f.len(), features, "--velocity {which}: {f:?}");
+        assert_eq!(
+            f.iter().any(|n| n == "d_p1_wrist_x"),
+            matches!(which, "both" | "human")
+        );
+        assert_eq!(
+            f.iter().any(|n| n == "d_p2_wrist_x"),
+            matches!(which, "both" | "robot")
+        );
+        let out = phasekit()
+            .args(["predict", "--model"])
+            .arg(&model)
+            .arg("--data")
+            .arg(&test)
+            .assert()
+            .success()
+            .get_output()
+            .stdout
+            .clone();
+        let (header, _) = parse_csv(&String::from_utf8(out).unwrap());
+        assert_eq!(header.len(), 1 + robot, "--velocity {which}: {header:?}");
+    }
+    // A list of globs selects the same columns, in the same order, as one glob.
+    let (one, list) = (dir.path().join("one.json"), dir.path().join("list.json"));
+    fit(&data, "hmm", &one);
+    phasekit()
+        .args([
+            "fit",
+            "--method",
+            "hmm",
+            "--human",
+            "p1_wrist_x,p1_wrist_[yz]",
+            "--robot",
+            "p2_wrist_?",
+            "--data",
+        ])
+        .arg(&data)
+        .arg("-o")
+        .arg(&list)
+        .assert()
+        .success();
+    let (a, b) = (model_json(&one), model_json(&list));
+    assert_eq!(
+        b["feature_spec"]["human"],
+        serde_json::json!(["p1_wrist_x", "p1_wrist_[yz]"])
+    );
+    for part in ["layout", "model", "roles"] {
+        assert!(a[part] == b[part], "`{part}` differs");
+    }
+}
+
+#[test]
+fn bad_inputs_of_predict_segment_evaluate_and_plot_are_refused() {
+    let (dir, data) = dataset();
+    let d = dir.path();
+    let model = d.join("m.json");
+    fit(&data, TSC, &model);
+    let header = synthetic::COLUMNS.join(",");
+    let mut rows = rows_of(&synthetic::generate(1, 3)[0].frames);
+    rows[4][1] = "abc".into();
+    write_csv(&d.join("text.csv"), &header, &rows);
+    rows[4][1] = "0.1".into();
+    rows[9][4] = "NaN".into();
+    write_csv(&d.join("nan.csv"), &header, &rows);
+    write_csv(
+        &d.join("humanonly.csv"),
+        "p1_wrist_x,p1_wrist_y,p1_wrist_z",
+        &vec![vec!["0.1".into(), "0.2".into(), "0.3".into()]; 5],
+    );
+    std::fs::copy(data.join("test_00.csv"), d.join("good.csv")).unwrap();
+    let args = |v: &[&str]| v.iter().map(|s| s.to_string()).collect::<Vec<_>>();
+    let run = |a: Vec<String>, msg: &[&str]| {
+        refused(d, &a.iter().map(String::as_str).collect::<Vec<_>>(), msg)
+    };
+    run(
+        args(&[
+            "predict", "--model", "m.json", "--data", "text.csv", "-o", "p.csv",
+        ]),
+        &["text.csv", "row 6", "column 2", "not a number"],
+    );
+    // Several inputs into a folder: one bad file, and no folder or file is made.
+    run(
+        args(&[
+            "predict", "--model", "m.json", "--data", "good.csv", "nan.csv", "-o", "preds/",
+        ]),
+        &["nan.csv", "row 11", "column 5", "not a finite number"],
+    );
+    run(
+        args(&[
+            "segment",
+            "--model",
+            "m.json",
+            "--data",
+            "humanonly.csv",
+            "-o",
+            "s.csv",
+        ]),
+        &["humanonly.csv", "needs the robot's column `p2_wrist_x`"],
+    );
+    run(
+        args(&[
+            "segment", "--model", "text.csv", "--data", "good.csv", "-o", "s.csv",
+        ]),
+        &["text.csv", "not a phasekit model file"],
+    );
+    run(
+        args(&[
+            "plot",
+            "prediction",
+            "--model",
+            "m.json",
+            "--data",
+            "nan.csv",
+            "-o",
+            "p.svg",
+        ]),
+        &["nan.csv", "row 11", "not a finite number"],
+    );
+    run(
+        args(&[
+            "plot",
+            "segmentation",
+            "--model",
+            "m.json",
+            "--data",
+            "humanonly.csv",
+            "-o",
+            "s.svg",
+        ]),
+        &["humanonly.csv", "needs the robot's column"],
+    );
+    run(
+        args(&[
+            "plot", "states", "--model", "m.json", "--data", "text.csv", "-o", "st.svg",
+        ]),
+        &["text.csv", "row 6", "not a number"],
+    );
+    run(
+        args(&[
+            "plot",
+            "states",
+            "--model",
+            "m.json",
+            "--data",
+            "good.csv",
+            "--z",
+            "p2_wrist_y",
+            "-o",
+            "st.svg",
+        ]),
+        &["--z needs --view 3d"],
+    );
+    // Evaluate: a bad cell in a training file of an action folder.
+    let bad = d.join("bad");
+    std::fs::create_dir(&bad).unwrap();
+    for f in [
+        "train_00.csv",
+        "train_01.csv",
+        "train_02.csv",
+        "test_00.csv",
+    ] {
+        std::fs::copy(data.join(f), bad.join(f)).unwrap();
+    }
+    std::fs::copy(d.join("text.csv"), bad.join("train_03.csv")).unwrap();
+    run(
+        args(&[
+            "evaluate",
+            "--data",
+            "bad",
+            "--methods",
+            "hmm",
+            "--seeds",
+            "2",
+            "-o",
+            "res",
+        ]),
+        &["train_03.csv", "row 6", "column 2", "not a number"],
+    );
+    run(
+        args(&[
+            "evaluate",
+            "--data",
+            "bad",
+            "--methods",
+            "hmm,nope",
+            "-o",
+            "res",
+        ]),
+        &["unknown preset `nope`"],
+    );
+    run(
+        args(&["evaluate", "--data", "good.csv", "--methods", "hmm"]),
+        &["good.csv", "needs a folder"],
+    );
+    run(
+        args(&[
+            "evaluate",
+            "--data",
+            "bad",
+            "--methods",
+            "hmm",
+            "-o",
+            "no/such/prefix",
+        ]),
+        &["folder no/such does not exist"],
+    );
+    // Windows: a dilation as long as a demonstration, gmm-tsc windows beyond 64 frames
+    // or a demonstration's length, and a window that would overflow.
+    let n = read_table(&data.join("train_00.csv"))
+        .unwrap()
+        .n_rows()
+        .min(
+            (1..8)
+                .map(|i| {
+                    read_table(&data.join(format!("train_{i:02}.csv")))
+                        .unwrap()
+                        .n_rows()
+                })
+                .min()
+                .unwrap(),
+        );
+    let data_arg = data.display().to_string();
+    run(
+        args(&[
+            "fit",
+            "--method",
+            "tsc-hmm",
+            "--window",
+            &n.to_string(),
+            "-o",
+            "w.json",
+            "--data",
+            &data_arg,
+        ]),
+        &["dilates every transition frame", "use a window below"],
+    );
+    run(
+        args(&[
+            "fit",
+            "--method",
+            "tsc-hmm",
+            "--window",
+            "18446744073709551615",
+            "-o",
+            "w.json",
+            "--data",
+            &data_arg,
+        ]),
+        &["dilates every transition frame"],
+    );
+    run(
+        args(&[
+            "fit",
+            "--method",
+            "gmm-tsc:window=65",
+            "-o",
+            "w.json",
+            "--data",
+            &data_arg,
+        ]),
+        &["1..=64"],
+    );
+    let short = d.join("short");
+    std::fs::create_dir(&short).unwrap();
+    write_csv(
+        &short.join("train_00.csv"),
+        &header,
+        &rows_of(&synthetic::generate(1, 5)[0].frames)[..20],
+    );
+    run(
+        args(&[
+            "fit",
+            "--method",
+            "gmm-tsc:window=30",
+            "-o",
+            "w.json",
+            "--data",
+            "short",
+        ]),
+        &["train_00.csv", "20 frames", "stacks 30 frames"],
+    );
+    // A model file whose union composition lost its union HMM.
+    let mut v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&model).unwrap()).unwrap();
+    assert!(v["model"]["model"]["union"].is_object());
+    v["model"]["model"]["union"] = serde_json::Value::Null;
+    std::fs::write(d.join("nounion.json"), v.to_string()).unwrap();
+    run(
+        args(&[
+            "predict",
+            "--model",
+            "nounion.json",
+            "--data",
+            "good.csv",
+            "-o",
+            "p.csv",
+        ]),
+        &["nounion.json", "corrupted model file", "no union HMM"],
+    );
+    // The fit hint names a larger window than the one that failed.
+    let out = phasekit()
+        .args([
+            "fit",
+            "--method",
+            "tsc-hmm:tsc-states=40,window=2",
+            "-o",
+            "h.json",
+            "--data",
+        ])
+        .arg(&data)
+        .current_dir(d)
+        .assert()
+        .failure()
+        .get_output()
+        .stderr
+        .clone();
+    let err = String::from_utf8(out).unwrap();
+    assert!(
+        err.contains("larger window than ±2 (e.g. --window 4)"),
+        "{err}"
+    );
+    assert!(!d.join("h.json").exists());
+}
+
+#[test]
+fn automatic_state_counts_from_the_command_line() {
+    let (dir, data) = dataset();
+    let model = dir.path().join("auto.json");
+    let out = phasekit()
+        .args([
+            "fit",
+            "--method",
+            "hmm",
+            "--states",
+            "auto",
+            "--max-states",
+            "6",
+            "--format",
+            "json",
+            "--data",
+        ])
+        .arg(&data)
+        .arg("-o")
+        .arg(&model)
+        .assert()
+        .success()
+        .get_output()
+        .stdout
+        .clone();
+    let report: serde_json::Value = serde_json::from_slice(&out).unwrap();
+    let bic = report["bic"].as_array().unwrap();
+    assert_eq!(bic.len(), 5, "BIC of 2..=6 states: {bic:?}");
+    let best = bic
+        .iter()
+        .min_by(|a, b| a[1].as_f64().unwrap().total_cmp(&b[1].as_f64().unwrap()))
+        .unwrap()[0]
+        .as_u64()
+        .unwrap();
+    assert_eq!(report["states"].as_u64().unwrap(), best);
+    assert_eq!(report["chosen"], format!("states={best} (BIC)"));
+    assert_eq!(ModelFile::load(&model).unwrap().n_states() as u64, best);
+    // The same through a method key, in evaluate, and gmm-tsc by G-means.
+    let out = phasekit()
+        .args([
+            "evaluate",
+            "--methods",
+            "hmm:states=auto,max-states=6,gmm-tsc:states=auto,select=gmeans,window=1,tsc-states=auto",
+            "--seeds",
+            "2",
+            "--format",
+            "json",
+            "--data",
+        ])
+        .arg(&data)
+        .assert()
+        .success()
+        .get_output()
+        .stdout
+        .clone();
+    let report: serde_json::Value = serde_json::from_slice(&out).unwrap();
+    let rows = report["results"].as_array().unwrap();
+    assert_eq!(rows[0]["seeds"], 2);
+    assert!((2..=6).contains(&rows[0]["states"].as_u64().unwrap()));
+    assert_eq!(rows[1]["seeds"], 2, "{}", rows[1]);
+    // Refused clearly: G-means for HMM states, states=auto for the CV presets.
+    phasekit()
+        .args([
+            "fit", "--method", "hmm", "--states", "auto", "--select", "gmeans", "-o", "x.json",
+            "--data",
+        ])
+        .arg(&data)
+        .assert()
+        .failure()
+        .stderr(predicate::str::contains("BIC only"));
+    phasekit()
+        .args([
+            "fit", "--method", "hmm-cv", "--states", "auto", "-o", "x.json", "--data",
+        ])
+        .arg(&data)
+        .assert()
+        .failure()
+        .stderr(predicate::str::contains("states=auto is offered for"));
+}
+
+#[test]
+fn evaluate_prints_the_metric_compares_twice_and_fails_loudly() {
+    let (dir, data) = dataset();
+    let out = phasekit()
+        .args([
+            "evaluate",
+            "--methods",
+            "hmm,hmm:states=5,hmm:states=6",
+            "--seeds",
+            "2",
+            "--data",
+        ])
+        .arg(&data)
+        .assert()
+        .success()
+        .get_output()
+        .stdout
+        .clone();
+    let md = String::from_utf8(out).unwrap();
+    assert!(md.starts_with("| action | method |"));
+    assert!(
+        md.contains("MSE: per frame, squared Euclidean error"),
+        "{md}"
+    );
+    let out = phasekit()
+        .args([
+            "evaluate",
+            "--methods",
+            "hmm,hmm:states=5,hmm:states=6",
+            "--seeds",
+            "2",
+            "--format",
+            "csv",
+            "--data",
+        ])
+        .arg(&data)
+        .assert()
+        .success()
+        .get_output()
+        .stdout
+        .clone();
+    let text = String::from_utf8(out).unwrap();
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let col = |n: &str| {
+        header
+            .iter()
+            .position(|h| *h == n)
+            .unwrap_or_else(|| panic!("{n}"))
+    };
+    let third: Vec<&str> = lines.nth(2).unwrap().split(',').collect();
+    assert_eq!(third[col("method")], "hmm:states=6");
+    assert_eq!(third[col("reference")], "hmm");
+    assert_eq!(third[col("second_reference")], "hmm:states=5");
+    for c in [
+        "paired_change",
+        "paired_won",
+        "paired_change_second",
+        "paired_won_second",
+    ] {
+        assert!(third[col(c)].parse::<f64>().unwrap().is_finite(), "{c}");
+    }
+
+    // -o DIR/ writes DIR/evaluate.md and DIR/evaluate.json (the folder is made).
+    let outs = dir.path().join("outs");
+    phasekit()
+        .args(["evaluate", "--methods", "hmm", "--seeds", "2", "--data"])
+        .arg(&data)
+        .arg("-o")
+        .arg(format!("{}/", outs.display()))
+        .assert()
+        .success();
+    only_files(&outs, &["evaluate.json", "evaluate.md"]);
+    assert!(std::fs::read_to_string(outs.join("evaluate.md"))
+        .unwrap()
+        .contains("MSE: per frame"));
+    // An existing folder without the slash, too.
+    phasekit()
+        .args(["evaluate", "--methods", "hmm", "--seeds", "2", "--data"])
+        .arg(&data)
+        .arg("-o")
+        .arg(&outs)
+        .assert()
+        .success();
+    only_files(&outs, &["evaluate.json", "evaluate.md"]);
+
+    // A method that fails on every seed (λ_T with more states than any transition
+    // segment has frames): the table is printed and written, the exit status is 1.
+    let prefix = dir.path().join("failing");
+    let out = phasekit()
+        .args([
+            "evaluate",
+            "--methods",
+            "hmm,tsc-hmm:tsc-states=40,window=0",
+            "--seeds",
+            "2",
+            "--data",
+        ])
+        .arg(&data)
+        .arg("-o")
+        .arg(&prefix)
+        .assert()
+        .failure()
+        .code(1)
+        .stderr(predicate::str::contains("failed on every seed"))
+        .get_output()
+        .stdout
+        .clone();
+    let md = String::from_utf8(out).unwrap();
+    let row = md
+        .lines()
+        .find(|l| l.starts_with("| data | tsc-hmm:tsc-states=40"))
+        .unwrap();
+    assert!(row.contains("| – | – | 0 | 2 | – | – |"), "{row}");
+    assert!(!md.contains("-0.000"));
+    assert!(dir.path().join("failing.md").exists() && dir.path().join("failing.json").exists());
+    // The CI guard.
+    phasekit()
+        .args([
+            "evaluate",
+            "--methods",
+            "hmm",
+            "--seeds",
+            "2",
+            "--fail-above",
+            "0.001",
+            "--data",
+        ])
+        .arg(&data)
+        .assert()
+        .failure()
+        .code(1)
+        .stderr(
+            predicate::str::contains("--fail-above 0.001")
+                .and(predicate::str::contains("data / hmm")),
+        );
+    phasekit()
+        .args([
+            "evaluate",
+            "--methods",
+            "hmm",
+            "--seeds",
+            "2",
+            "--fail-above",
+            "1e9",
+            "--data",
+        ])
+        .arg(&data)
+        .assert()
+        .success();
+}
+
+#[test]
+fn prediction_plot_has_the_two_sigma_band_and_states_plot_the_predicting_model() {
+    let (dir, data) = dataset();
+    let model = dir.path().join("m.json");
+    fit(&data, TSC, &model);
+    let test = data.join("test_00.csv");
+    let n = read_table(&test).unwrap().n_rows();
+    let svg = dir.path().join("p.svg");
+    phasekit()
+        .args(["plot", "prediction", "--model"])
+        .arg(&model)
+        .arg("--data")
+        .arg(&test)
+        .arg("-o")
+        .arg(&svg)
+        .assert()
+        .success();
+    let text = std::fs::read_to_string(&svg).unwrap();
+    // One ±2σ band per robot position column: a polygon of the upper and the lower
+    // edge, 2 points per frame.
+    let bands: Vec<usize> = text
+        .split("<polygon")
+        .skip(1)
+        .map(|p| {
+            let pts = p
+                .split("points=\"")
+                .nth(1)
+                .unwrap()
+                .split('"')
+                .next()
+                .unwrap();
+            pts.split_whitespace().count()
+        })
+        .collect();
+    assert_eq!(
+        bands.iter().filter(|&&k| k == 2 * n).count(),
+        3,
+        "{bands:?}"
+    );
+    assert!(text.contains("±2σ"));
+
+    // The states plot draws the union's re-trained Gaussians, λ_T's as transition states.
+    let mf = ModelFile::load(&model).unwrap();
+    let phasekit_tsc::Model::TscHmm { model: m, .. } = &mf.model else {
+        panic!()
+    };
+    let union = m.union.as_ref().unwrap();
+    let dims = [
+        mf.layout
+            .features
+            .iter()
+            .position(|f| f == "p2_wrist_x")
+            .unwrap(),
+        5 + 6,
+    ];
+    let e = phasekit_cli::plot::model_ellipses(&mf, dims);
+    assert_eq!(e.len(), 7);
+    for (i, el) in e.iter().enumerate() {
+        assert_eq!(
+            el.mean,
+            [
+                union.emission().mean(i)[dims[0]],
+                union.emission().mean(i)[dims[1]]
+            ]
+        );
+        assert_eq!(el.transition, i >= 4, "state {i}");
+    }
+    assert_ne!(
+        union.emission().mean(0),
+        m.base.emission().mean(0),
+        "the union's Gaussians are re-trained, not λ's"
+    );
+    let svg = dir.path().join("s3.svg");
+    phasekit()
+        .args(["plot", "states", "--view", "3d", "--model"])
+        .arg(&model)
+        .arg("--data")
+        .arg(&data)
+        .arg("-o")
+        .arg(&svg)
+        .assert()
+        .success();
+    let text = std::fs::read_to_string(&svg).unwrap();
+    for s in [
+        "oblique 3-D view",
+        "p2_wrist_x",
+        "p2_wrist_y",
+        "p2_wrist_z",
+        "transition state 2",
+        "state 3",
+    ] {
+        assert!(text.contains(s), "{s}");
+    }
+}
+
+#[test]
+fn stream_writes_each_frame_before_the_input_ends() {
+    use std::io::{BufRead, BufReader, Write};
+    let (dir, data) = dataset();
+    let model = dir.path().join("m.json");
+    fit(&data, "hmm", &model);
+    let mut child = std::process::Command::new(assert_cmd::cargo::cargo_bin("phasekit"))
+        .args(["stream", "--quiet", "--no-header", "--model"])
+        .arg(&model)
+        .stdin(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut stdin = child.stdin.take().unwrap();
+    let stdout = child.stdout.take().unwrap();
+    let (tx, rx) = std::sync::mpsc::channel();
+    let reader = std::thread::spawn(move || {
+        for line in BufReader::new(stdout).lines() {
+            if tx.send(line.unwrap()).is_err() {
+                break;
+            }
+        }
+    });
+    let timeout = std::time::Duration::from_secs(30);
+    for frame in ["0.01,0.02,0.03", "0.02,0.03,0.04"] {
+        // One line in, with stdin still open: its prediction must come out now.
+        writeln!(stdin, "{frame}").unwrap();
+        stdin.flush().unwrap();
+        let line = rx
+            .recv_timeout(timeout)
+            .expect("a predicted frame is written before the input ends");
+        assert_eq!(line.split(',').count(), 1 + 6, "{line}");
+    }
+    drop(stdin);
+    assert!(child.wait().unwrap().success());
+    reader.join().unwrap();
+    assert!(rx.try_recv().is_err(), "nothing more after the two frames");
 }

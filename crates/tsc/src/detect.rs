@@ -11,6 +11,7 @@ use crate::error::Result;
 use phasekit_emission::{Emission, Frames};
 use phasekit_gmm::MixtureModel;
 use phasekit_hmm::Hmm;
+use std::borrow::Cow;
 use std::ops::Range;
 
 /// Anything that assigns a state to each frame of a sequence.
@@ -55,18 +56,22 @@ impl<E: Emission> Labeller for ViterbiLabeller<'_, E> {
     }
 }
 
-/// Labels by `argmax_i h_t(i)`, the causal (filtered) belief, computed on
-/// the dims `dims` of the frames (all dims when `None`).
-pub struct FilterLabeller<E: Emission> {
-    hmm: Hmm<E>,
+/// Labels by `argmax_i h_t(i)`, the causal (filtered) belief
+/// `h_t(i) = p(z_t = i | o_{1:t})` (the normalised forward variable α_t, which
+/// includes the current frame), computed on the dims `dims` of the frames (all
+/// dims when `None`) with the model's marginal on those dims.
+///
+/// The joint labeller borrows the model; the marginal one owns its marginal HMM.
+pub struct FilterLabeller<'a, E: Emission> {
+    hmm: Cow<'a, Hmm<E>>,
     dims: Option<Vec<usize>>,
 }
 
-impl<E: Emission> FilterLabeller<E> {
+impl<'a, E: Emission> FilterLabeller<'a, E> {
     /// Filtered argmax on all dims of `hmm`.
-    pub fn joint(hmm: &Hmm<E>) -> Self {
+    pub fn joint(hmm: &'a Hmm<E>) -> Self {
         FilterLabeller {
-            hmm: hmm.clone(),
+            hmm: Cow::Borrowed(hmm),
             dims: None,
         }
     }
@@ -74,13 +79,13 @@ impl<E: Emission> FilterLabeller<E> {
     /// Filtered argmax on the marginal of `hmm` on `dims` (e.g. the human's).
     pub fn marginal(hmm: &Hmm<E>, dims: &[usize]) -> Result<Self> {
         Ok(FilterLabeller {
-            hmm: hmm.marginal(dims)?,
+            hmm: Cow::Owned(hmm.marginal(dims)?),
             dims: Some(dims.to_vec()),
         })
     }
 }
 
-impl<E: Emission> Labeller for FilterLabeller<E> {
+impl<E: Emission> Labeller for FilterLabeller<'_, E> {
     fn label(&self, seq: Frames<'_>) -> Result<Vec<usize>> {
         let s = self.hmm.n_states();
         let forward = match &self.dims {
@@ -91,6 +96,31 @@ impl<E: Emission> Labeller for FilterLabeller<E> {
             }
         };
         Ok(forward.filtered().chunks_exact(s).map(argmax).collect())
+    }
+}
+
+/// A detector made of two labellers: frame `t` is flagged when their labels differ,
+/// `f_t = [a(o)_t ≠ b(o)_t]`.
+///
+/// The seed paper's transition states are
+/// `Disagreement::new(FilterLabeller::joint(λ), FilterLabeller::marginal(λ, human)?)`:
+/// the state believed from both partners and the one believed from the human alone.
+pub struct Disagreement<A: Labeller, B: Labeller> {
+    /// The first labelling.
+    pub a: A,
+    /// The second labelling.
+    pub b: B,
+}
+
+impl<A: Labeller, B: Labeller> Disagreement<A, B> {
+    /// The detector of frames where `a` and `b` disagree.
+    pub fn new(a: A, b: B) -> Self {
+        Disagreement { a, b }
+    }
+
+    /// One flag per frame of `seq`.
+    pub fn flags(&self, seq: Frames<'_>) -> Result<Vec<bool>> {
+        Ok(disagreement(&self.a.label(seq)?, &self.b.label(seq)?))
     }
 }
 
@@ -128,13 +158,16 @@ pub fn disagreement(a: &[usize], b: &[usize]) -> Vec<bool> {
     a.iter().zip(b).map(|(x, y)| x != y).collect()
 }
 
-/// Widens every flagged frame to `±w` frames.
+/// Widens every flagged frame to `±w` frames: `out_t = ∃ s: flags_s ∧ |t − s| ≤ w`.
+///
+/// Any `w` is accepted (saturating arithmetic: `w ≥ T` flags the whole sequence
+/// when any frame is flagged); callers bound `w` by the sequence length.
 pub fn dilate(flags: &[bool], w: usize) -> Vec<bool> {
     let n = flags.len();
     let mut out = vec![false; n];
     for (t, f) in flags.iter().enumerate() {
         if *f {
-            out[t.saturating_sub(w)..(t + w + 1).min(n)].fill(true);
+            out[t.saturating_sub(w)..t.saturating_add(w).saturating_add(1).min(n)].fill(true);
         }
     }
     out

@@ -10,9 +10,10 @@
 
 use crate::detect::{dilate, runs, select, Labeller, ViterbiLabeller};
 use crate::error::{Result, TscError};
-use crate::krishnan::{KrishnanSettings, KrishnanTsc, Segmentation};
+use crate::krishnan::{KrishnanSettings, KrishnanTsc, Segmentation, TimeClustering};
+use crate::select::Selector;
 use crate::tsc_hmm::{
-    disagreement_flags, Composition, Detector, HmmSettings, Roles, TscHmm, TscSettings,
+    disagreement_flags, AutoStates, Composition, Detector, HmmSettings, Roles, TscHmm, TscSettings,
 };
 use phasekit_emission::{CovarianceType, Emission, Frames, Gaussian, Regularization, SequenceSet};
 use phasekit_gmm::{Em, Gmm, MixtureModel};
@@ -41,6 +42,30 @@ pub struct GmmSettings {
 }
 
 impl GmmSettings {
+    /// Checks the settings: at least one component, iteration and run; finite
+    /// non-negative `reg` and `tol`.
+    pub fn validate(&self) -> Result<()> {
+        if self.components == 0 || self.max_iter == 0 || self.restarts == 0 {
+            return Err(TscError::InvalidSetting {
+                name: "gmm",
+                reason: format!(
+                    "components, max_iter and restarts must be ≥ 1, got {}, {} and {}",
+                    self.components, self.max_iter, self.restarts
+                ),
+            });
+        }
+        if !(self.reg.is_finite() && self.reg >= 0.0 && self.tol.is_finite() && self.tol >= 0.0) {
+            return Err(TscError::InvalidSetting {
+                name: "gmm",
+                reason: format!(
+                    "reg and tol must be finite numbers ≥ 0, got {} and {}",
+                    self.reg, self.tol
+                ),
+            });
+        }
+        Ok(())
+    }
+
     fn em(&self) -> Result<Em> {
         Ok(Em::builder()
             .max_iter(self.max_iter)
@@ -61,6 +86,8 @@ pub enum Method {
     /// TSC-HMM.
     TscHmm(TscSettings),
     /// Krishnan-style TSC over a GMM, static GMR over the GMM and the kept transition clusters.
+    /// With an automatic frame mixture (`tsc.components = None`) the GMM it extends takes
+    /// the number of components chosen for the frame mixture (`gmm.components` is then unused).
     GmmTsc {
         /// The base mixture.
         gmm: GmmSettings,
@@ -83,12 +110,32 @@ pub enum Method {
 /// Knobs shared by the presets (the command line's flags).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct PresetOptions {
-    /// Base states (components for `gmm`).
+    /// Base states (components for `gmm`); not used when `auto_states` is set.
     pub states: usize,
-    /// Transition states (TSC-HMM) or transition clusters (`gmm-tsc`, 0 = BIC).
+    /// Choose the base states automatically (`states=auto`): `hmm` and the `tsc-hmm`
+    /// presets by BIC over `AUTO_MIN_STATES..=max_states` states of λ; `gmm-tsc` the
+    /// frame mixture (and the GMM it extends) by `select` over the same range.
+    #[serde(default)]
+    pub auto_states: bool,
+    /// How automatic counts are chosen (`select=bic|gmeans`); G-means is offered for
+    /// `gmm-tsc`'s mixtures only.
+    #[serde(default)]
+    pub select: Selector,
+    /// Largest count an automatic choice may give.
+    #[serde(default = "default_max_states")]
+    pub max_states: usize,
+    /// Transition states (TSC-HMM) or transition clusters (`gmm-tsc`, 0 = automatic by `select`).
     pub tsc_states: usize,
-    /// Dilation `±w` of transition frames (TSC-HMM), window of stacked frames (`gmm-tsc`, ≥ 1).
+    /// Dilation `±w` of transition frames (TSC-HMM), window of stacked frames (`gmm-tsc`; 0 and 1: the frame alone).
     pub window: usize,
+    /// `ρ` of `gmm-tsc`: transition clusters with transitions from fewer than this
+    /// fraction of the demonstrations are pruned.
+    #[serde(default = "default_rho")]
+    pub rho: f64,
+    /// `gmm-tsc`: sub-cluster every kept transition cluster by normalised time into at
+    /// most this many sub-clusters (chosen by BIC); 0 = off.
+    #[serde(default)]
+    pub time_clusters: usize,
     /// Covariance regularisation.
     pub reg: f64,
     /// Maximum iterations.
@@ -101,14 +148,31 @@ pub struct PresetOptions {
     pub seed: u64,
 }
 
+/// Fewest states an automatic choice of states tries (one state has no transitions).
+pub const AUTO_MIN_STATES: usize = 2;
+
+fn default_max_states() -> usize {
+    10
+}
+
+fn default_rho() -> f64 {
+    0.5
+}
+
 impl Default for PresetOptions {
     /// The paper-compatible values: 4 states, 3 transition states, window ±2, `reg = 1e-2`,
-    /// 40 iterations, tolerance `1e-4`, one run, seed 0.
+    /// 40 iterations, tolerance `1e-4`, one run, seed 0; automatic choices (when asked
+    /// for) by BIC up to 10; `ρ = 0.5`; no time sub-clustering.
     fn default() -> Self {
         PresetOptions {
             states: 4,
+            auto_states: false,
+            select: Selector::Bic,
+            max_states: default_max_states(),
             tsc_states: 3,
             window: 2,
+            rho: default_rho(),
+            time_clusters: 0,
             reg: 1e-2,
             max_iter: 40,
             tol: 1e-4,
@@ -133,8 +197,30 @@ pub const PRESETS: &[&str] = &[
 ];
 
 impl Method {
-    /// The preset `name` with the given options.
+    /// The preset `name` with the given options, every setting checked (an invalid
+    /// combination is refused here, before any fit).
     pub fn preset(name: &str, o: &PresetOptions) -> Result<Method> {
+        let refuse = |reason: String| {
+            Err(TscError::InvalidSetting {
+                name: "method",
+                reason,
+            })
+        };
+        if !PRESETS.contains(&name) {
+            return refuse(format!(
+                "unknown preset `{name}`; known: {}",
+                PRESETS.join(", ")
+            ));
+        }
+        // `-cv` presets choose their states by cross-validation.
+        let auto_ok = matches!(name, "hmm" | "gmm-tsc")
+            || (name.starts_with("tsc-hmm") && !name.ends_with("-cv"));
+        if o.auto_states && !auto_ok {
+            return refuse(format!(
+                "states=auto is offered for hmm, the tsc-hmm presets (not tsc-hmm-cv) and gmm-tsc, not `{name}`"
+            ));
+        }
+        let auto_hmm = o.auto_states && name != "gmm-tsc";
         let hmm = HmmSettings {
             states: o.states,
             reg: o.reg,
@@ -143,6 +229,11 @@ impl Method {
             restarts: o.restarts,
             seed: o.seed,
             covariance: CovarianceType::Full,
+            auto_states: auto_hmm.then_some(AutoStates {
+                min: AUTO_MIN_STATES,
+                max: o.max_states,
+                selector: o.select,
+            }),
         };
         let tsc = |composition, detector| {
             Method::TscHmm(TscSettings {
@@ -162,7 +253,7 @@ impl Method {
             restarts: o.restarts.max(3),
             seed: o.seed,
         };
-        Ok(match name {
+        let method = match name {
             "hmm" => Method::Hmm(hmm),
             "tsc-hmm" => tsc(DEFAULT_COMPOSITION, Detector::Disagreement),
             "tsc-hmm-union" => tsc(Composition::Union, Detector::Disagreement),
@@ -199,21 +290,49 @@ impl Method {
             "gmm-tsc" => Method::GmmTsc {
                 gmm: gmm.clone(),
                 tsc: KrishnanSettings {
-                    components: Some(o.states),
+                    components: (!o.auto_states).then_some(o.states),
+                    max_components: o.max_states,
+                    selector: o.select,
                     window: o.window.max(1),
                     transition_clusters: (o.tsc_states > 0).then_some(o.tsc_states),
+                    prune_fraction: o.rho,
+                    time_clusters: (o.time_clusters > 0).then(|| TimeClustering {
+                        max_clusters: o.time_clusters,
+                        ..TimeClustering::default()
+                    }),
                     reg: o.reg,
                     seed: o.seed,
                     ..KrishnanSettings::default()
                 },
             },
-            other => {
-                return Err(TscError::InvalidSetting {
-                    name: "method",
-                    reason: format!("unknown preset `{other}`; known: {}", PRESETS.join(", ")),
-                })
+            other => unreachable!("`{other}` is in PRESETS but has no settings"),
+        };
+        method.validate()?;
+        Ok(method)
+    }
+
+    /// Checks every setting of the method (called by [`Method::preset`]; call it on a
+    /// method built by hand or read from a file).
+    pub fn validate(&self) -> Result<()> {
+        let bad = |name, reason: String| Err(TscError::InvalidSetting { name, reason });
+        match self {
+            Method::Hmm(s) => s.validate(),
+            Method::TscHmm(s) => s.validate(),
+            Method::Gmm(s) => s.validate(),
+            Method::GmmTsc { gmm, tsc } => {
+                gmm.validate()?;
+                tsc.validate()
             }
-        })
+            Method::CrossValidated { candidates, folds } => {
+                if candidates.is_empty() {
+                    return bad("candidates", "no candidate to choose from".into());
+                }
+                if *folds < 2 {
+                    return bad("folds", format!("at least 2 folds are needed, got {folds}"));
+                }
+                candidates.iter().try_for_each(|(_, m)| m.validate())
+            }
+        }
     }
 
     /// Fits the method to joint training sequences.
@@ -221,15 +340,27 @@ impl Method {
         roles.check(data.dim())?;
         match self {
             Method::Hmm(s) => {
-                let (hmm, r) = s.fit(data)?;
-                Ok((Model::Hmm(hmm), FitSummary::from_hmm(&r)))
+                let clock = std::time::Instant::now();
+                let (hmm, r, selection) = s.fit_selected(data)?;
+                let mut summary = FitSummary::from_hmm(&r);
+                if let Some(sel) = selection {
+                    summary.fit_seconds = clock.elapsed().as_secs_f64();
+                    summary.with_selection(&sel);
+                }
+                Ok((Model::Hmm(hmm), summary))
             }
             Method::TscHmm(s) => {
+                let clock = std::time::Instant::now();
                 let (m, r) = TscHmm::fit(data, roles, s)?;
                 let mut summary = FitSummary::from_hmm(r.union.as_ref().unwrap_or(&r.base));
                 summary.fit_seconds = r.base.fit_seconds
                     + r.transition.fit_seconds
                     + r.union.as_ref().map_or(0.0, |u| u.fit_seconds);
+                if let Some(sel) = &r.selection {
+                    // The choice of λ's states costs one fit per candidate.
+                    summary.fit_seconds = clock.elapsed().as_secs_f64();
+                    summary.with_selection(sel);
+                }
                 summary.transition_segments = Some(r.segments);
                 Ok((
                     Model::TscHmm {
@@ -240,6 +371,7 @@ impl Method {
                 ))
             }
             Method::Gmm(s) => {
+                s.validate()?;
                 let f = s.em()?.fit(
                     &Gaussian::standard(CovarianceType::Full, s.components, data.dim())?,
                     data.all_frames(),
@@ -266,15 +398,29 @@ impl Method {
                 Ok((model, summary))
             }
             Method::GmmTsc { gmm, tsc } => {
+                gmm.validate()?;
                 let ktsc = tsc.fit(data)?;
+                let components = match tsc.components {
+                    Some(_) => gmm.components,
+                    None => ktsc.mixture.n_components(),
+                };
                 let base = gmm.em()?.fit(
-                    &Gaussian::standard(CovarianceType::Full, gmm.components, data.dim())?,
+                    &Gaussian::standard(CovarianceType::Full, components, data.dim())?,
                     data.all_frames(),
                 )?;
                 let joined = join_mixtures(&base.model, &ktsc.transition_mixture, &ktsc.kept)?;
                 let f = gmm.em()?.fit_from(joined, data.all_frames())?;
                 let mut summary = FitSummary::from_gmm(&f.report);
                 summary.fit_seconds += base.report.fit_seconds;
+                if tsc.components.is_none() || tsc.transition_clusters.is_none() {
+                    summary.chosen = Some(format!(
+                        "{} frame components ({}), {} transition clusters kept of {}",
+                        ktsc.mixture.n_components(),
+                        tsc.selector.name(),
+                        ktsc.reported_clusters().len(),
+                        ktsc.transition_mixture.n_components()
+                    ));
+                }
                 Ok((
                     Model::GmmTsc {
                         tsc: ktsc,
@@ -390,9 +536,17 @@ pub struct FitSummary {
     /// Mean cross-validated squared prediction error of every candidate (`inf` if it failed).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub cv_errors: Vec<(String, f64)>,
+    /// `(states, BIC)` of every candidate of an automatic choice of states.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub bic: Vec<(usize, f64)>,
 }
 
 impl FitSummary {
+    fn with_selection(&mut self, sel: &phasekit_gmm::Selection) {
+        self.chosen = Some(format!("states={} (BIC)", sel.best));
+        self.bic = sel.scores.clone();
+    }
+
     fn from_hmm(r: &phasekit_hmm::FitReport) -> Self {
         FitSummary {
             iterations: r.iterations,
@@ -407,6 +561,7 @@ impl FitSummary {
             transition_segments: None,
             chosen: None,
             cv_errors: Vec::new(),
+            bic: Vec::new(),
         }
     }
 
@@ -424,6 +579,7 @@ impl FitSummary {
             transition_segments: None,
             chosen: None,
             cv_errors: Vec::new(),
+            bic: Vec::new(),
         }
     }
 }
@@ -476,15 +632,45 @@ impl Model {
         }
     }
 
+    /// Checks that the parts of the model agree (a model read from a file may not):
+    /// see [`TscHmm::validate`] and [`KrishnanTsc::validate`]; the predicting mixture
+    /// of `gmm-tsc` holds its base components and the kept clusters.
+    pub fn validate(&self) -> Result<()> {
+        match self {
+            Model::Hmm(_) | Model::Gmm(_) => Ok(()),
+            Model::TscHmm { model, .. } => model.validate(),
+            Model::GmmTsc { tsc, mixture } => {
+                tsc.validate()?;
+                if mixture.dim() != tsc.transition_mixture.dim()
+                    || mixture.n_components() <= tsc.kept.len()
+                {
+                    return Err(TscError::InvalidSetting {
+                        name: "gmm-tsc model",
+                        reason: format!(
+                            "the predicting mixture has {} components of dimension {}: it needs more than the {} kept clusters, of dimension {}",
+                            mixture.n_components(),
+                            mixture.dim(),
+                            tsc.kept.len(),
+                            tsc.transition_mixture.dim()
+                        ),
+                    });
+                }
+                Ok(())
+            }
+        }
+    }
+
     /// The predictor of the robot's dims from the human's.
     pub fn predictor(&self, roles: &Roles) -> Result<Predictor> {
         roles.check(self.dim())?;
+        self.validate()?;
         let hmm = |h: &Hmm<Gaussian>| HmmRegression::new(h, &roles.human, &roles.robot);
         Ok(match self {
             Model::Hmm(h) => Predictor::Hmm(hmm(h)?),
-            Model::TscHmm { model, .. } => match (&model.union, model.composition) {
-                (Some(u), _) => Predictor::Hmm(hmm(u)?),
-                (None, _) => Predictor::Gated {
+            // `validate` has checked that a union composition has its union HMM and the gate none.
+            Model::TscHmm { model, .. } => match &model.union {
+                Some(u) => Predictor::Hmm(hmm(u)?),
+                None => Predictor::Gated {
                     base: hmm(&model.base)?,
                     transition: hmm(&model.transition)?,
                 },

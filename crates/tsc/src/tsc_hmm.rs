@@ -11,9 +11,11 @@
 //! The paper does not say how `λ` and `λ_T` are combined to predict; the
 //! [`Composition`]s below are the candidates measured in the ablation.
 
-use crate::detect::{argmax, dilate, disagreement, runs, select, worst_fraction};
+use crate::detect::{dilate, runs, select, worst_fraction, Disagreement, FilterLabeller};
 use crate::error::{Result, TscError};
+use crate::select::{check_range, Selector};
 use phasekit_emission::{CovarianceType, Emission, Frames, Gaussian, Regularization, SequenceSet};
+use phasekit_gmm::{select_hmm_states_bic, Selection};
 use phasekit_gmr::HmmRegression;
 use phasekit_hmm::{BaumWelch, Convergence, FitReport, Hmm, Init, Update};
 use serde::{Deserialize, Serialize};
@@ -53,6 +55,36 @@ pub struct HmmSettings {
     pub seed: u64,
     /// Covariance structure of the emissions.
     pub covariance: CovarianceType,
+    /// Choose the number of states automatically (then `states` is not used).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub auto_states: Option<AutoStates>,
+}
+
+/// An automatic choice of the number of HMM states: the count in `min..=max` whose
+/// HMM, fitted by the same Baum-Welch settings, has the lowest
+/// `BIC(S) = −2 log p(O | λ̂_S) + p_S log N` (`p_S` free parameters, `N` frames;
+/// `phasekit_gmm::select_hmm_states_bic`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct AutoStates {
+    /// Fewest states tried.
+    pub min: usize,
+    /// Most states tried.
+    pub max: usize,
+    /// How the count is chosen; only [`Selector::Bic`] is available for HMM states
+    /// (a G-means HMM selector is not part of `phasekit-gmm` yet).
+    #[serde(default)]
+    pub selector: Selector,
+}
+
+impl AutoStates {
+    /// BIC over `min..=max` states.
+    pub fn bic(min: usize, max: usize) -> Self {
+        AutoStates {
+            min,
+            max,
+            selector: Selector::Bic,
+        }
+    }
 }
 
 impl HmmSettings {
@@ -67,7 +99,50 @@ impl HmmSettings {
             restarts: 1,
             seed: 0,
             covariance: CovarianceType::Full,
+            auto_states: None,
         }
+    }
+
+    /// Checks the settings: at least one state (or a valid automatic range), finite
+    /// non-negative `reg` and `tol`, at least one iteration and one run.
+    pub fn validate(&self) -> Result<()> {
+        let bad = |name, reason: String| Err(TscError::InvalidSetting { name, reason });
+        match self.auto_states {
+            None if self.states == 0 => {
+                return bad("states", "at least one state is needed".into());
+            }
+            None => {}
+            Some(a) => {
+                check_range("max-states", &(a.min..=a.max))?;
+                if a.selector != Selector::Bic {
+                    return bad(
+                        "select",
+                        "the number of HMM states can be chosen by BIC only (select=bic): \
+                         phasekit-gmm has no G-means selector of HMM states yet"
+                            .into(),
+                    );
+                }
+            }
+        }
+        if !(self.reg.is_finite() && self.reg >= 0.0) {
+            return bad(
+                "reg",
+                format!("must be a finite number ≥ 0, got {}", self.reg),
+            );
+        }
+        if !(self.tol.is_finite() && self.tol >= 0.0) {
+            return bad(
+                "tol",
+                format!("must be a finite number ≥ 0, got {}", self.tol),
+            );
+        }
+        if self.max_iter == 0 || self.restarts == 0 {
+            return bad(
+                "max-iter/restarts",
+                "at least one iteration and one run are needed".into(),
+            );
+        }
+        Ok(())
     }
 
     /// The checked Baum-Welch settings.
@@ -85,15 +160,35 @@ impl HmmSettings {
 
     /// Fits an HMM with these settings to `data`.
     pub fn fit(&self, data: &SequenceSet) -> Result<(Hmm<Gaussian>, FitReport)> {
-        if self.states == 0 {
-            return Err(TscError::InvalidSetting {
-                name: "states",
-                reason: "at least one state is needed".into(),
-            });
-        }
-        let template = Gaussian::standard(self.covariance, self.states, data.dim())?;
-        let fitted = self.baum_welch()?.fit(&template, data)?;
-        Ok((fitted.model, fitted.report))
+        let (hmm, report, _) = self.fit_selected(data)?;
+        Ok((hmm, report))
+    }
+
+    /// Fits an HMM with these settings to `data`; with `auto_states`, first chooses
+    /// the number of states and returns the scores of every candidate as well.
+    pub fn fit_selected(
+        &self,
+        data: &SequenceSet,
+    ) -> Result<(Hmm<Gaussian>, FitReport, Option<Selection>)> {
+        self.validate()?;
+        let bw = self.baum_welch()?;
+        let template = |k| Gaussian::standard(self.covariance, k, data.dim());
+        let (states, selection) = match self.auto_states {
+            None => (self.states, None),
+            Some(a) => {
+                // A demonstration shorter than the number of states cannot be k-binned:
+                // candidates stop at the shortest demonstration's length.
+                let shortest = data.iter().map(|s| s.len()).min().unwrap_or(0);
+                let hi = a.max.min(shortest.max(1));
+                let lo = a.min.min(hi);
+                let sel = select_hmm_states_bic(&bw, template, data, lo..=hi)?;
+                (sel.best, Some(sel))
+            }
+        };
+        // Refitting the chosen count repeats the selection's fit exactly (same
+        // initialisation and seed), so the model is the one that was scored.
+        let fitted = bw.fit(&template(states)?, data)?;
+        Ok((fitted.model, fitted.report, selection))
     }
 }
 
@@ -141,6 +236,27 @@ pub struct TscSettings {
 }
 
 impl TscSettings {
+    /// Checks the settings: the base HMM's, at least one transition state, and a
+    /// detector fraction in `(0, 1]`.
+    pub fn validate(&self) -> Result<()> {
+        self.base.validate()?;
+        if self.tsc_states == 0 {
+            return Err(TscError::InvalidSetting {
+                name: "tsc-states",
+                reason: "the transition HMM needs at least one state (tsc-states=0 or auto chooses the transition clusters of gmm-tsc only)".into(),
+            });
+        }
+        if let Detector::WorstPrediction { fraction } = self.detector {
+            if !(fraction > 0.0 && fraction <= 1.0) {
+                return Err(TscError::InvalidSetting {
+                    name: "fraction",
+                    reason: format!("must lie in (0, 1], got {fraction}"),
+                });
+            }
+        }
+        Ok(())
+    }
+
     /// The paper's method with 4 + 3 states, window `w`, and the given composition.
     pub fn paper(window: usize, composition: Composition) -> Self {
         TscSettings {
@@ -157,24 +273,20 @@ impl TscSettings {
 /// Per training demonstration: the flagged transition frames.
 pub type TransitionFlags = Vec<Vec<bool>>;
 
-/// Flags where the human-only and joint filtered argmax states of `hmm` disagree.
+/// Flags where the human-only and joint filtered argmax states of `hmm` disagree:
+/// `f_t = [argmax_i h_i(o¹²_{1:t}) ≠ argmax_i h_i(o¹_{1:t})]`, the paper's transition states.
+///
+/// A [`Disagreement`] of two [`FilterLabeller`]s (joint, and human marginal).
 pub fn disagreement_flags(
     hmm: &Hmm<Gaussian>,
     roles: &Roles,
     data: &SequenceSet,
 ) -> Result<TransitionFlags> {
-    let human = hmm.marginal(&roles.human)?;
-    let s = hmm.n_states();
-    data.iter()
-        .map(|seq| {
-            let joint = hmm.forward(seq)?;
-            let sub = select(seq, &roles.human);
-            let alone = human.forward(Frames::new(&sub, roles.human.len())?)?;
-            let a: Vec<usize> = joint.filtered().chunks_exact(s).map(argmax).collect();
-            let b: Vec<usize> = alone.filtered().chunks_exact(s).map(argmax).collect();
-            Ok(disagreement(&a, &b))
-        })
-        .collect()
+    let detector = Disagreement::new(
+        FilterLabeller::joint(hmm),
+        FilterLabeller::marginal(hmm, &roles.human)?,
+    );
+    data.iter().map(|seq| detector.flags(seq)).collect()
 }
 
 /// Squared prediction error of the robot dims by HMM-GMR from the human dims, per frame.
@@ -250,6 +362,8 @@ pub struct TscReport {
     pub flags: TransitionFlags,
     /// Number of transition segments `λ_T` was trained on.
     pub segments: usize,
+    /// The automatic choice of `λ`'s number of states, if any.
+    pub selection: Option<Selection>,
 }
 
 /// The union of two HMMs' states: emissions side by side, transitions block-diagonal
@@ -289,6 +403,44 @@ pub fn union_of(a: &Hmm<Gaussian>, b: &Hmm<Gaussian>, epsilon: f64) -> Result<Hm
 }
 
 impl TscHmm {
+    /// Checks that the parts agree: `λ` and `λ_T` (and the union) have the same
+    /// dimension; a union composition has its union HMM of `S + S_T` states, the gate none.
+    pub fn validate(&self) -> Result<()> {
+        let bad = |reason: String| {
+            Err(TscError::InvalidSetting {
+                name: "tsc-hmm model",
+                reason,
+            })
+        };
+        let d = self.base.dim();
+        if self.transition.dim() != d {
+            return bad(format!(
+                "the transition HMM has dimension {}, the base HMM {d}",
+                self.transition.dim()
+            ));
+        }
+        let s = self.base.n_states() + self.transition.n_states();
+        match (self.composition, &self.union) {
+            (Composition::Union | Composition::UnionFrozen, None) => bad(format!(
+                "the composition is {:?}, which predicts with the union HMM, but the model has no union HMM (`union: null`)",
+                self.composition
+            )),
+            (Composition::Union | Composition::UnionFrozen, Some(u))
+                if u.dim() != d || u.n_states() != s =>
+            {
+                bad(format!(
+                    "the union HMM has {} states of dimension {}, not the {s} states of dimension {d} of λ and λ_T",
+                    u.n_states(),
+                    u.dim()
+                ))
+            }
+            (Composition::Gated, Some(_)) => bad(
+                "the composition is Gated, which predicts with λ and λ_T, but the model holds a union HMM".into(),
+            ),
+            _ => Ok(()),
+        }
+    }
+
     /// Algorithm 1 and the chosen composition, on joint training sequences.
     pub fn fit(
         data: &SequenceSet,
@@ -296,16 +448,23 @@ impl TscHmm {
         settings: &TscSettings,
     ) -> Result<(Self, TscReport)> {
         roles.check(data.dim())?;
-        let (base, base_report) = settings.base.fit(data)?;
+        settings.validate()?;
+        if let Some((k, shortest)) = data.iter().map(|s| s.len()).enumerate().min_by_key(|x| x.1) {
+            if settings.window >= shortest {
+                return Err(TscError::InvalidSetting {
+                    name: "window",
+                    reason: format!(
+                        "a dilation of ±{} frames is not shorter than demonstration {k} ({shortest} frames): \
+                         a single transition frame would flag all of it",
+                        settings.window
+                    ),
+                });
+            }
+        }
+        let (base, base_report, selection) = settings.base.fit_selected(data)?;
         let flags = match settings.detector {
             Detector::Disagreement => disagreement_flags(&base, roles, data)?,
             Detector::WorstPrediction { fraction } => {
-                if !(fraction > 0.0 && fraction <= 1.0) {
-                    return Err(TscError::InvalidSetting {
-                        name: "fraction",
-                        reason: format!("must lie in (0, 1], got {fraction}"),
-                    });
-                }
                 worst_fraction(&prediction_errors(&base, roles, data)?, fraction)
             }
         };
@@ -313,6 +472,7 @@ impl TscHmm {
         let segments = transition_sequences(data, &flags, settings.min_run.max(1))?;
         let tsc = HmmSettings {
             states: settings.tsc_states,
+            auto_states: None,
             ..settings.base.clone()
         };
         let (transition, transition_report) = tsc.fit(&segments)?;
@@ -349,6 +509,7 @@ impl TscHmm {
                 union: union_report,
                 flags,
                 segments: n_segments,
+                selection,
             },
         ))
     }

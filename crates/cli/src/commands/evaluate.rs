@@ -11,7 +11,7 @@ use crate::experiment::{
 use crate::output;
 use phasekit_tsc::PresetOptions;
 use serde::Serialize;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 /// Label of the constant baseline rows.
 pub const BASELINE: &str = "constant-mean";
@@ -137,17 +137,27 @@ pub fn markdown(r: &Report) -> String {
                 row.action, row.method, row.mse_mean, row.rmse_mean
             ));
         } else {
+            // A method that failed on every seed has no time and no state count to show.
+            let (states, fit, predict) = if row.seeds == 0 {
+                ("–".to_string(), "–".to_string(), "–".to_string())
+            } else {
+                (
+                    row.states.to_string(),
+                    format!("{:.3}", row.fit_seconds),
+                    format!("{:.1}", row.predict_us_per_frame),
+                )
+            };
             s.push_str(&format!(
-                "| {} | {} | {} | {} | {} | {} | {} | {:.3} | {:.1} | {} | {} | {} | {} |\n",
+                "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |\n",
                 row.action,
                 row.method,
-                row.states,
+                states,
                 pm(row.mse_mean, row.mse_std, row.seeds),
                 pm(row.rmse_mean, row.rmse_std, row.seeds),
                 row.seeds,
                 row.failures.len(),
-                row.fit_seconds,
-                row.predict_us_per_frame,
+                fit,
+                predict,
                 change,
                 won,
                 change2,
@@ -158,14 +168,23 @@ pub fn markdown(r: &Report) -> String {
     s
 }
 
-/// The CSV of a report.
+/// The Markdown document of a report: the table, then the metric's definition
+/// (what `evaluate` prints and writes to PREFIX.md).
+pub fn markdown_document(r: &Report) -> String {
+    format!("{}\n{}\n", markdown(r), r.metric)
+}
+
+/// The CSV of a report: one line per row, with both paired comparisons (against the
+/// first method: `reference`, `paired_change`, `paired_won`, `paired_seeds`; against the
+/// second: `second_reference`, `paired_change_second`, `paired_won_second`).
 pub fn csv(r: &Report) -> String {
-    let mut s = String::from("action,method,states,mse_mean,mse_std,rmse_mean,rmse_std,seeds,failures,fit_seconds,predict_us_per_frame,paired_change,paired_won,baseline\n");
+    let mut s = String::from("action,method,states,mse_mean,mse_std,rmse_mean,rmse_std,seeds,failures,fit_seconds,predict_us_per_frame,paired_change,paired_won,baseline,reference,paired_seeds,second_reference,paired_change_second,paired_won_second\n");
     let opt = |v: Option<f64>| v.map_or(String::new(), |v| v.to_string());
+    let name = |v: &Option<String>| v.as_deref().map_or(String::new(), output::csv_field);
     for x in &r.results {
         let row = &x.row;
         s.push_str(&format!(
-            "{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
             output::csv_field(&row.action),
             output::csv_field(&row.method),
             row.states,
@@ -179,10 +198,39 @@ pub fn csv(r: &Report) -> String {
             row.predict_us_per_frame,
             opt(x.paired_change),
             opt(x.paired_won),
-            x.baseline
+            x.baseline,
+            name(&x.reference),
+            x.paired_seeds.map_or(String::new(), |n| n.to_string()),
+            name(&x.second_reference),
+            opt(x.paired_change_second),
+            opt(x.paired_won_second),
         ));
     }
     s
+}
+
+/// Where `-o PATH` writes: `PATH.md` and `PATH.json`; a folder (existing, or given with
+/// a trailing `/`) gets `evaluate.md` and `evaluate.json`; a `.md`/`.json` extension is dropped.
+pub fn output_files(o: &Path) -> Result<(PathBuf, PathBuf)> {
+    let text = o.as_os_str().to_string_lossy();
+    let folder = o.is_dir() || text.ends_with('/') || text.ends_with(std::path::MAIN_SEPARATOR);
+    let prefix = if folder {
+        o.join("evaluate")
+    } else {
+        match o.extension().and_then(|e| e.to_str()) {
+            Some("md") | Some("json") => o.with_extension(""),
+            _ => o.to_path_buf(),
+        }
+    };
+    if prefix.file_name().is_none_or(|n| n.is_empty() || n == ".") {
+        bail!("-o {}: not a usable file prefix", o.display());
+    }
+    let with_ext = |ext: &str| {
+        let mut s = prefix.clone().into_os_string();
+        s.push(ext);
+        PathBuf::from(s)
+    };
+    Ok((with_ext(".md"), with_ext(".json")))
 }
 
 fn baseline_row(action: &str, mse: f64) -> Row {
@@ -298,6 +346,11 @@ pub fn run(a: &EvaluateArgs) -> Result<()> {
     if a.seeds == 0 {
         bail!("--seeds must be at least 1");
     }
+    if let Some(x) = a.fail_above {
+        if !(x.is_finite() && x > 0.0) {
+            bail!("--fail-above must be a positive number, not {x}");
+        }
+    }
     if !(a.unit_scale.is_finite() && a.unit_scale > 0.0) {
         bail!(
             "--unit-scale must be a positive number, not {}",
@@ -315,15 +368,24 @@ pub fn run(a: &EvaluateArgs) -> Result<()> {
         .iter()
         .map(|m| parse_method(m, &options).map_err(|e| CliError::new(format!("--methods: {e}"))))
         .collect::<Result<Vec<_>>>()?;
-    if let Some(prefix) = &a.output {
-        let dir = prefix
+    let outputs = a.output.as_deref().map(output_files).transpose()?;
+    if let (Some(o), Some((md, _))) = (&a.output, &outputs) {
+        // Checked before the (long) run. A prefix needs an existing folder; a folder
+        // given as `DIR/` is created at the end if its nearest existing ancestor is a folder.
+        let dir = md
             .parent()
             .filter(|p| !p.as_os_str().is_empty())
-            .unwrap_or(std::path::Path::new("."));
-        if !dir.is_dir() {
+            .unwrap_or(Path::new("."));
+        let folder_form = md.parent() == Some(o.as_path());
+        let creatable = dir
+            .ancestors()
+            .skip(1)
+            .find(|p| p.as_os_str().is_empty() || p.exists())
+            .is_some_and(|p| p.as_os_str().is_empty() || p.is_dir());
+        if !dir.is_dir() && !(folder_form && creatable) {
             bail!(
                 "-o {}: folder {} does not exist",
-                prefix.display(),
+                o.display(),
                 dir.display()
             );
         }
@@ -354,33 +416,79 @@ pub fn run(a: &EvaluateArgs) -> Result<()> {
     let report = evaluate(
         &a.data, actions, &spec, defaults, &methods, &options, &protocol,
     )?;
-    let md = markdown(&report);
+    let md = markdown_document(&report);
     let json =
         serde_json::to_string_pretty(&report).map_err(|e| CliError::new(e.to_string()))? + "\n";
-    if let Some(prefix) = &a.output {
-        let with_ext = |ext: &str| {
-            let mut s = prefix.clone().into_os_string();
-            s.push(ext);
-            PathBuf::from(s)
-        };
-        output::write_string(&with_ext(".md"), &format!("{md}\n{}\n", report.metric))?;
-        output::write_string(&with_ext(".json"), &json)?;
+    if let Some((md_path, json_path)) = &outputs {
+        if let Some(dir) = md_path.parent().filter(|p| !p.as_os_str().is_empty()) {
+            output::create_dir(dir)?;
+        }
+        output::write_files_atomic(&[
+            (md_path.clone(), md.clone()),
+            (json_path.clone(), json.clone()),
+        ])?;
     }
-    let failures: usize = report.results.iter().map(|r| r.row.failures.len()).sum();
-    if failures > 0 {
-        for r in report.results.iter().filter(|r| !r.row.failures.is_empty()) {
-            let (seed, msg) = &r.row.failures[0];
-            eprintln!(
-                "phasekit: warning: {} / {}: {} seed(s) failed; seed {seed}: {msg}",
-                r.row.action,
-                r.row.method,
-                r.row.failures.len()
+    for r in report.results.iter().filter(|r| !r.row.failures.is_empty()) {
+        let (seed, msg) = &r.row.failures[0];
+        eprintln!(
+            "phasekit: warning: {} / {}: {} seed(s) failed; seed {seed}: {msg}",
+            r.row.action,
+            r.row.method,
+            r.row.failures.len()
+        );
+    }
+    match a.format {
+        Format::Json => output::print_stdout(&json)?,
+        Format::Csv => output::print_stdout(&csv(&report))?,
+        Format::Md => output::print_stdout(&md)?,
+    }
+    check(&report, a.fail_above)
+}
+
+/// The exit status of a finished run: an error (exit 1, after the table was printed and
+/// written) when a method failed on every seed of an action, or, with `fail_above`,
+/// when a method's mean MSE is not finite or exceeds it.
+pub fn check(report: &Report, fail_above: Option<f64>) -> Result<()> {
+    let rows = || {
+        report
+            .results
+            .iter()
+            .filter(|r| !r.baseline)
+            .map(|r| &r.row)
+    };
+    let dead: Vec<String> = rows()
+        .filter(|r| r.seeds == 0)
+        .map(|r| {
+            format!(
+                "{} / {}{}",
+                r.action,
+                r.method,
+                r.failures
+                    .first()
+                    .map_or(String::new(), |(s, m)| format!(" (seed {s}: {m})"))
+            )
+        })
+        .collect();
+    if !dead.is_empty() {
+        bail!(
+            "{} method/action pair{} failed on every seed: {}",
+            dead.len(),
+            if dead.len() == 1 { "" } else { "s" },
+            dead.join("; ")
+        );
+    }
+    if let Some(limit) = fail_above {
+        let u = unit(report.protocol.protocol.unit_scale);
+        let bad: Vec<String> = rows()
+            .filter(|r| !(r.mse_mean.is_finite() && r.mse_mean <= limit))
+            .map(|r| format!("{} / {}: {} {u}²", r.action, r.method, r.mse_mean))
+            .collect();
+        if !bad.is_empty() {
+            bail!(
+                "--fail-above {limit}: mean MSE not finite or above {limit} {u}² for {}",
+                bad.join("; ")
             );
         }
     }
-    match a.format {
-        Format::Json => output::print_stdout(&json),
-        Format::Csv => output::print_stdout(&csv(&report)),
-        Format::Md => output::print_stdout(&md),
-    }
+    Ok(())
 }

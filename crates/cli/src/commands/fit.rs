@@ -84,11 +84,16 @@ pub fn fit_tables(
         .fit(&data, &roles)
         .map_err(|e| {
             let mut msg = format!("fitting `{}` failed: {e}", named.label);
-            if matches!(named.method, phasekit_tsc::Method::TscHmm(_)) && msg.contains("too few frames") {
-                msg.push_str(
-                    "\n  (the transition HMM is trained on the transition segments found in the demonstrations, and they are too few or too short: \
-                     try a larger --window, e.g. --window 2, or fewer --tsc-states)",
-                );
+            if let phasekit_tsc::Method::TscHmm(s) = &named.method {
+                if msg.contains("too few frames") {
+                    // Suggest a window larger than the one that failed.
+                    let next = (2 * s.window).max(s.window + 2);
+                    msg.push_str(&format!(
+                        "\n  (the transition HMM is trained on the transition segments found in the demonstrations, and they are too few or too short \
+                         for {} transition states: try a larger window than ±{} (e.g. --window {next}) or fewer --tsc-states)",
+                        s.tsc_states, s.window
+                    ));
+                }
             }
             CliError::new(msg)
         })?;
@@ -198,7 +203,7 @@ fn markdown(r: &FitReport) -> String {
         ("features", r.features.join(", ")),
         ("standardised", r.standardised.to_string()),
         (
-            "chosen by cross-validation",
+            "chosen (cross-validation or BIC)",
             r.fit.chosen.clone().unwrap_or_else(|| "–".into()),
         ),
         ("iterations", r.fit.iterations.to_string()),

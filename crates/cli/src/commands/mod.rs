@@ -9,7 +9,7 @@ pub mod segment;
 pub mod stream;
 
 use crate::bail;
-use crate::cli::{ColumnArgs, ModelArgs};
+use crate::cli::{ColumnArgs, Count, ModelArgs};
 use crate::data::{self, DataError, FeatureSpec, Table, Velocity};
 use crate::error::{CliError, Result};
 use phasekit_tsc::{Method, PresetOptions};
@@ -56,7 +56,8 @@ pub fn column_hint(e: DataError, defaults: bool) -> CliError {
     }
 }
 
-/// The preset options of the command line.
+/// The preset options of the command line (each `NAME:key=value` setting can still
+/// override them; `Method::preset` checks the result).
 pub fn preset_options(m: &ModelArgs) -> Result<PresetOptions> {
     if !(m.tol.is_finite() && m.tol >= 0.0) {
         bail!("--tol must be a finite number ≥ 0, not {}", m.tol);
@@ -64,8 +65,8 @@ pub fn preset_options(m: &ModelArgs) -> Result<PresetOptions> {
     if !(m.reg.is_finite() && m.reg >= 0.0) {
         bail!("--reg must be a finite number ≥ 0, not {}", m.reg);
     }
-    if m.states == 0 {
-        bail!("--states must be at least 1");
+    if m.states == Count::Fixed(0) {
+        bail!("--states must be at least 1 (or auto)");
     }
     if m.max_iter == 0 {
         bail!("--max-iter must be at least 1");
@@ -73,10 +74,31 @@ pub fn preset_options(m: &ModelArgs) -> Result<PresetOptions> {
     if m.restarts == 0 {
         bail!("--restarts must be at least 1");
     }
+    if m.max_states < phasekit_tsc::preset::AUTO_MIN_STATES {
+        bail!(
+            "--max-states must be at least {}",
+            phasekit_tsc::preset::AUTO_MIN_STATES
+        );
+    }
+    if !(0.0..=1.0).contains(&m.rho) {
+        bail!("--rho must lie in [0, 1], not {}", m.rho);
+    }
+    let defaults = PresetOptions::default();
     Ok(PresetOptions {
-        states: m.states,
-        tsc_states: m.tsc_states,
+        states: match m.states {
+            Count::Fixed(n) => n,
+            Count::Auto => defaults.states,
+        },
+        auto_states: m.states == Count::Auto,
+        select: m.select.into(),
+        max_states: m.max_states,
+        tsc_states: match m.tsc_states {
+            Count::Fixed(n) => n,
+            Count::Auto => 0,
+        },
         window: m.window,
+        rho: m.rho,
+        time_clusters: m.time_clusters,
         reg: m.reg,
         max_iter: m.max_iter,
         tol: m.tol,
@@ -118,13 +140,15 @@ pub fn split_methods(items: &[String]) -> Vec<String> {
     out
 }
 
-/// Smallest number of frames a demonstration needs for `method`, and the reason.
+/// Smallest number of frames a demonstration needs for `method`, and whether per
+/// demonstration (HMM states) or in all (mixture components).
 pub fn min_frames(method: &Method) -> (usize, bool) {
+    let hmm = |s: &phasekit_tsc::HmmSettings| s.auto_states.map_or(s.states, |a| a.min);
     match method {
-        Method::Hmm(s) => (s.states, true),
-        Method::TscHmm(s) => (s.base.states, true),
+        Method::Hmm(s) => (hmm(s), true),
+        Method::TscHmm(s) => (hmm(&s.base), true),
         Method::Gmm(s) => (s.components, false),
-        Method::GmmTsc { gmm, .. } => (gmm.components, false),
+        Method::GmmTsc { gmm, tsc } => (tsc.components.map_or(2, |_| gmm.components), false),
         Method::CrossValidated { candidates, .. } => candidates
             .iter()
             .map(|(_, m)| min_frames(m))
@@ -132,7 +156,22 @@ pub fn min_frames(method: &Method) -> (usize, bool) {
     }
 }
 
-/// Checks that demonstrations are long enough for `method`.
+/// The window of `method` and whether it must be shorter than every demonstration
+/// (a TSC-HMM's dilation ±W) or at most as long (gmm-tsc's stacked frames).
+fn window_of(method: &Method) -> Vec<(usize, bool)> {
+    match method {
+        Method::TscHmm(s) => vec![(s.window, true)],
+        Method::GmmTsc { tsc, .. } => vec![(tsc.window, false)],
+        Method::CrossValidated { candidates, .. } => {
+            candidates.iter().flat_map(|(_, m)| window_of(m)).collect()
+        }
+        Method::Hmm(_) | Method::Gmm(_) => Vec::new(),
+    }
+}
+
+/// Checks that demonstrations are long enough for `method`: its states, and its
+/// window (a TSC-HMM's dilation ±W must be shorter than every demonstration; gmm-tsc
+/// cannot stack more frames than a demonstration has).
 pub fn check_lengths(tables: &[Table], method: &Method, label: &str) -> Result<()> {
     let (need, per_sequence) = min_frames(method);
     if per_sequence {
@@ -150,6 +189,23 @@ pub fn check_lengths(tables: &[Table], method: &Method, label: &str) -> Result<(
         let total: usize = tables.iter().map(Table::n_rows).sum();
         if total < need {
             bail!("{total} frames in all, fewer than the {need} components of `{label}`");
+        }
+    }
+    if let Some(shortest) = tables.iter().min_by_key(|t| t.n_rows()) {
+        let n = shortest.n_rows();
+        for (w, dilation) in window_of(method) {
+            if dilation && w >= n {
+                bail!(
+                    "{}: {n} frames: `{label}` dilates every transition frame by ±{w} frames (--window {w}), which would flag the whole demonstration; use a window below {n}",
+                    shortest.path.display()
+                );
+            }
+            if !dilation && w > n {
+                bail!(
+                    "{}: {n} frames: `{label}` stacks {w} frames into one vector (--window {w}), more than this demonstration has; use a window of at most {n}",
+                    shortest.path.display()
+                );
+            }
         }
     }
     Ok(())

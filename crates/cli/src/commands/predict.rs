@@ -106,12 +106,12 @@ pub fn run(a: &PredictArgs) -> Result<()> {
                     bail!("two inputs would both be written to {} ({} and another); predict them separately", o.join(&n).display(), t.path.display());
                 }
             }
-            output::create_dir(o)?;
             let texts = (0..tables.len()).map(render).collect::<Result<Vec<_>>>()?;
-            for (name, text) in names.iter().zip(&texts) {
-                output::write_string(&o.join(name), text)?;
-            }
-            Ok(())
+            output::create_dir(o)?;
+            // All files or none: an interrupted run leaves no partial set.
+            let files: Vec<(PathBuf, String)> =
+                names.iter().map(|n| o.join(n)).zip(texts).collect();
+            output::write_files_atomic(&files)
         }
         Some(o) => output::write_string(o, &render(0)?),
     }
