@@ -152,7 +152,7 @@ pub struct ModelArgs {
     /// (hmm, tsc-hmm*, gmm-tsc)
     #[arg(long, value_name = "N|auto", default_value = "4")]
     pub states: Count,
-    /// How `auto` counts are chosen: bic (HMM states and mixtures) or gmeans (gmm-tsc's mixtures)
+    /// How `auto` counts are chosen: bic (lowest BIC over the range) or gmeans (G-means on the frames)
     #[arg(long, value_enum, value_name = "HOW", default_value = "bic")]
     pub select: SelectArg,
     /// Largest count an automatic choice may give
@@ -208,8 +208,8 @@ Methods (presets): see the list below; settings per method with NAME:key=value,.
 (keys: states, tsc-states, window, reg, max-iter, tol, restarts, seed, select,
 max-states, rho, time-clusters), e.g. tsc-hmm:states=5,window=2 or
 gmm-tsc:states=auto,select=gmeans,rho=0.6. The command-line flags set the defaults of every key.
-states=auto (--states auto) chooses the base states by BIC over 2..=max-states
-(hmm, tsc-hmm*: λ's states; gmm-tsc: its mixture, also by select=gmeans).";
+states=auto (--states auto) chooses the base states over 2..=max-states by BIC,
+or by G-means with select=gmeans (hmm, tsc-hmm*: λ's states; gmm-tsc: its mixture).";
 
 /// The help text after a command's options: examples, then the presets.
 fn with_presets(examples: &str) -> String {

@@ -113,12 +113,11 @@ pub struct PresetOptions {
     /// Base states (components for `gmm`); not used when `auto_states` is set.
     pub states: usize,
     /// Choose the base states automatically (`states=auto`): `hmm` and the `tsc-hmm`
-    /// presets by BIC over `AUTO_MIN_STATES..=max_states` states of λ; `gmm-tsc` the
-    /// frame mixture (and the GMM it extends) by `select` over the same range.
+    /// presets λ's states, `gmm-tsc` the frame mixture (and the GMM it extends), by
+    /// `select` over `AUTO_MIN_STATES..=max_states`.
     #[serde(default)]
     pub auto_states: bool,
-    /// How automatic counts are chosen (`select=bic|gmeans`); G-means is offered for
-    /// `gmm-tsc`'s mixtures only.
+    /// How automatic counts are chosen (`select=bic|gmeans`).
     #[serde(default)]
     pub select: Selector,
     /// Largest count an automatic choice may give.

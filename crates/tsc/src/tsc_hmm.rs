@@ -15,7 +15,7 @@ use crate::detect::{dilate, runs, select, worst_fraction, Disagreement, FilterLa
 use crate::error::{Result, TscError};
 use crate::select::{check_range, Selector};
 use phasekit_emission::{CovarianceType, Emission, Frames, Gaussian, Regularization, SequenceSet};
-use phasekit_gmm::{select_hmm_states_bic, Selection};
+use phasekit_gmm::{gmeans, select_hmm_states_bic, GMeans, Selection};
 use phasekit_gmr::HmmRegression;
 use phasekit_hmm::{BaumWelch, Convergence, FitReport, Hmm, Init, Update};
 use serde::{Deserialize, Serialize};
@@ -60,18 +60,18 @@ pub struct HmmSettings {
     pub auto_states: Option<AutoStates>,
 }
 
-/// An automatic choice of the number of HMM states: the count in `min..=max` whose
-/// HMM, fitted by the same Baum-Welch settings, has the lowest
+/// An automatic choice of the number of HMM states in `min..=max`: by BIC, the
+/// count whose HMM, fitted by the same Baum-Welch settings, has the lowest
 /// `BIC(S) = −2 log p(O | λ̂_S) + p_S log N` (`p_S` free parameters, `N` frames;
-/// `phasekit_gmm::select_hmm_states_bic`).
+/// `phasekit_gmm::select_hmm_states_bic`); by G-means, the number of Gaussian
+/// clusters G-means finds in the pooled frames (`phasekit_gmm::gmeans`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub struct AutoStates {
     /// Fewest states tried.
     pub min: usize,
     /// Most states tried.
     pub max: usize,
-    /// How the count is chosen; only [`Selector::Bic`] is available for HMM states
-    /// (a G-means HMM selector is not part of `phasekit-gmm` yet).
+    /// How the count is chosen.
     #[serde(default)]
     pub selector: Selector,
 }
@@ -112,17 +112,7 @@ impl HmmSettings {
                 return bad("states", "at least one state is needed".into());
             }
             None => {}
-            Some(a) => {
-                check_range("max-states", &(a.min..=a.max))?;
-                if a.selector != Selector::Bic {
-                    return bad(
-                        "select",
-                        "the number of HMM states can be chosen by BIC only (select=bic): \
-                         phasekit-gmm has no G-means selector of HMM states yet"
-                            .into(),
-                    );
-                }
-            }
+            Some(a) => check_range("max-states", &(a.min..=a.max))?,
         }
         if !(self.reg.is_finite() && self.reg >= 0.0) {
             return bad(
@@ -181,8 +171,28 @@ impl HmmSettings {
                 let shortest = data.iter().map(|s| s.len()).min().unwrap_or(0);
                 let hi = a.max.min(shortest.max(1));
                 let lo = a.min.min(hi);
-                let sel = select_hmm_states_bic(&bw, template, data, lo..=hi)?;
-                (sel.best, Some(sel))
+                match a.selector {
+                    Selector::Bic => {
+                        let sel = select_hmm_states_bic(&bw, template, data, lo..=hi)?;
+                        (sel.best, Some(sel))
+                    }
+                    // G-means on the pooled frames (deterministic: its splits start
+                    // along the principal axis), clamped to the range; the BIC of the
+                    // fitted HMM is its score (as `select_hmm_states_gmeans` reports).
+                    Selector::GMeans => {
+                        let k = gmeans(data.all_frames(), GMeans::default())?
+                            .k
+                            .clamp(lo, hi);
+                        let fitted = bw.fit(&template(k)?, data)?;
+                        let bic = fitted.model.bic(data)?;
+                        let sel = Selection {
+                            best: k,
+                            scores: vec![(k, bic)],
+                            failures: Vec::new(),
+                        };
+                        return Ok((fitted.model, fitted.report, Some(sel)));
+                    }
+                }
             }
         };
         // Refitting the chosen count repeats the selection's fit exactly (same

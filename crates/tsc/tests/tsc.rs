@@ -704,13 +704,25 @@ fn automatic_hmm_states_take_the_lowest_bic() {
     assert_eq!(m.base.n_states(), best);
     assert_eq!(tsc.n_states(), best + 3);
     assert!(!summary.bic.is_empty());
-    // Refused at construction: G-means for HMM states, auto states for the CV presets and gmm.
+    // G-means chooses λ's states too: the G-means count of the pooled frames,
+    // clamped to the range, fitted and scored by its BIC.
     let g = PresetOptions {
         select: Selector::GMeans,
         ..o.clone()
     };
-    let err = Method::preset("hmm", &g).unwrap_err().to_string();
-    assert!(err.contains("BIC only"), "{err}");
+    let (gm, gsummary) = Method::preset("hmm", &g)
+        .unwrap()
+        .fit(&train, &roles())
+        .unwrap();
+    let shortest = train.lengths().min().unwrap();
+    let k = phasekit_gmm::gmeans(train.all_frames(), phasekit_gmm::GMeans::default())
+        .unwrap()
+        .k
+        .clamp(2, o.max_states.min(shortest));
+    assert_eq!(gm.n_states(), k);
+    let Model::Hmm(gh) = &gm else { panic!() };
+    assert_eq!(gsummary.bic, vec![(k, gh.bic(&train).unwrap())]);
+    // Refused at construction: auto states for the CV presets and gmm.
     for name in ["hmm-cv", "tsc-hmm-cv", "gmm"] {
         let err = Method::preset(name, &o).unwrap_err().to_string();
         assert!(err.contains("states=auto"), "{name}: {err}");
