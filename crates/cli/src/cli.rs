@@ -392,6 +392,15 @@ pub struct EvaluateArgs {
     /// Exit with an error (after printing) if any method's mean MSE is not finite or above X (reported units²)
     #[arg(long, value_name = "X")]
     pub fail_above: Option<f64>,
+    /// Robustness experiment: remove this fraction of the selected values at random (seeded), from
+    /// the training demonstrations and from the test demonstrations' human columns, before the
+    /// velocities are computed
+    #[arg(long, value_name = "FRAC")]
+    pub missing: Option<f64>,
+    /// What --missing removes: values (each independently), frames (whole frames), occlusions
+    /// (runs of 10 frames of one side)
+    #[arg(long, value_enum, value_name = "HOW", default_value = "values")]
+    pub missing_mode: crate::experiment::RemovalMode,
 }
 
 const PLOT_EXAMPLES: &str = "\

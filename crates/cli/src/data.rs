@@ -82,8 +82,13 @@ pub enum DataError {
         available: String,
     },
     /// A pattern is not a valid glob, or the selection is otherwise unusable.
-    #[error("invalid column selection: {0}")]
-    Selection(String),
+    #[error("{path}: invalid column selection: {reason}")]
+    Selection {
+        /// The file whose columns were being selected.
+        path: PathBuf,
+        /// What is wrong.
+        reason: String,
+    },
     /// Demonstrations of one data set have different columns.
     #[error("{path}: its columns differ from those of {first} ({detail})")]
     ColumnsDiffer {
@@ -339,7 +344,10 @@ pub struct Layout {
 fn resolve(path: &Path, columns: &[String], patterns: &[String]) -> Result<Vec<usize>> {
     let mut out: Vec<usize> = Vec::new();
     for p in patterns {
-        let pat = glob::Pattern::new(p).map_err(|e| DataError::Selection(format!("`{p}`: {e}")))?;
+        let pat = glob::Pattern::new(p).map_err(|e| DataError::Selection {
+            path: path.to_path_buf(),
+            reason: format!("`{p}`: {e}"),
+        })?;
         let hits: Vec<usize> = (0..columns.len())
             .filter(|&c| pat.matches(&columns[c]))
             .collect();
@@ -363,17 +371,21 @@ impl FeatureSpec {
     /// Resolves the patterns against a table's columns.
     pub fn layout(&self, table: &Table) -> Result<(Layout, Vec<usize>, Vec<usize>)> {
         if self.human.is_empty() || self.robot.is_empty() {
-            return Err(DataError::Selection(
-                "both --human and --robot columns are needed".into(),
-            ));
+            return Err(DataError::Selection {
+                path: table.path.clone(),
+                reason: "both --human and --robot columns are needed".into(),
+            });
         }
         let h = resolve(&table.path, &table.columns, &self.human)?;
         let r = resolve(&table.path, &table.columns, &self.robot)?;
         if let Some(c) = h.iter().find(|c| r.contains(c)) {
-            return Err(DataError::Selection(format!(
-                "column `{}` is selected for both the human and the robot",
-                table.columns[*c]
-            )));
+            return Err(DataError::Selection {
+                path: table.path.clone(),
+                reason: format!(
+                    "column `{}` is selected for both the human and the robot",
+                    table.columns[*c]
+                ),
+            });
         }
         let names = |idx: &[usize]| {
             idx.iter()

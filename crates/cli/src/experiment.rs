@@ -8,10 +8,10 @@
 //! all frames of all test demonstrations; RMSE = √MSE per seed; mean ± std
 //! (population std) over seeds.
 
-use crate::data::{Action, FeatureSpec, Layout};
+use crate::data::{Action, FeatureSpec, Layout, Table};
 use phasekit_emission::{Frames, SequenceSet};
 use phasekit_tsc::{Method, PresetOptions, Roles, Selector};
-use rand::SeedableRng;
+use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -78,6 +78,10 @@ pub struct Protocol {
     pub unit_scale: f64,
     /// Standardise features (z-score with the training subset's mean and std) before fitting.
     pub standardise: bool,
+    /// Values removed at random from every seed's data (a robustness experiment;
+    /// the paper's protocol removes none).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub removal: Option<Removal>,
 }
 
 impl Default for Protocol {
@@ -87,7 +91,125 @@ impl Default for Protocol {
             train_size: None,
             unit_scale: 100.0,
             standardise: false,
+            removal: None,
         }
+    }
+}
+
+/// Which values [`Removal`] takes away.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum RemovalMode {
+    /// Every selected value independently (sensor noise, sparse dropouts).
+    Values,
+    /// Whole frames: every selected value of the frame (dropped packets).
+    Frames,
+    /// Runs of 10 frames of one side's selected columns (a hand occluded).
+    Occlusions,
+}
+
+/// Removes a fraction of the selected raw values (NaN = missing) before the
+/// features are computed, so a velocity is missing where either of its
+/// positions is: from the training demonstrations both sides' columns, from
+/// the test demonstrations the human's only (the robot's are the truth).
+/// Seed `s`, demonstration `k` draws from `ChaCha8Rng::seed_from_u64(s · 2³² + k)`
+/// (test demonstrations `k + 2³¹`), the same for every method.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Removal {
+    /// Expected fraction of the values removed, in [0, 1).
+    pub fraction: f64,
+    /// Which values.
+    pub mode: RemovalMode,
+}
+
+/// Frames of an occlusion.
+const OCCLUSION_FRAMES: usize = 10;
+
+impl Removal {
+    /// Checks `0 ≤ fraction < 1`.
+    pub fn new(fraction: f64, mode: RemovalMode) -> Result<Self, String> {
+        if !(0.0..1.0).contains(&fraction) {
+            return Err(format!(
+                "the fraction of values to remove must lie in [0, 1), got {fraction}"
+            ));
+        }
+        Ok(Removal { fraction, mode })
+    }
+
+    /// A copy of `table` with values of the column groups `sides` removed.
+    fn apply(&self, table: &Table, sides: &[&[usize]], seed: u64) -> Table {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let mut out = table.clone();
+        let width = table.columns.len();
+        let f = self.fraction;
+        match self.mode {
+            RemovalMode::Values => {
+                for row in out.data.chunks_exact_mut(width) {
+                    for &c in sides.iter().flat_map(|s| s.iter()) {
+                        if rng.random::<f64>() < f {
+                            row[c] = f64::NAN;
+                        }
+                    }
+                }
+            }
+            RemovalMode::Frames => {
+                for row in out.data.chunks_exact_mut(width) {
+                    if rng.random::<f64>() < f {
+                        for &c in sides.iter().flat_map(|s| s.iter()) {
+                            row[c] = f64::NAN;
+                        }
+                    }
+                }
+            }
+            RemovalMode::Occlusions => {
+                // Runs start with the probability that occludes a fraction `f` of the frames.
+                let n = OCCLUSION_FRAMES as f64;
+                let start = f / (n * (1.0 - f) + f);
+                for side in sides {
+                    let mut left = 0;
+                    for row in out.data.chunks_exact_mut(width) {
+                        if left == 0 && rng.random::<f64>() < start {
+                            left = OCCLUSION_FRAMES;
+                        }
+                        if left > 0 {
+                            for &c in side.iter() {
+                                row[c] = f64::NAN;
+                            }
+                            left -= 1;
+                        }
+                    }
+                }
+            }
+        }
+        out
+    }
+
+    /// The features of seed `seed`'s training demonstrations `idx` and of every
+    /// test demonstration, with values removed.
+    fn features(
+        &self,
+        action: &Action,
+        spec: &FeatureSpec,
+        seed: u64,
+        idx: &[usize],
+    ) -> Result<(Vec<Vec<f64>>, Vec<Vec<f64>>), String> {
+        let one = |t: &Table, human_only: bool, k: u64| -> Result<Vec<f64>, String> {
+            let (_, h, r) = spec.layout(t).map_err(|e| e.to_string())?;
+            let sides: Vec<&[usize]> = if human_only { vec![&h] } else { vec![&h, &r] };
+            let blanked = self.apply(t, &sides, (seed << 32) + k);
+            Ok(spec.features(&blanked).map_err(|e| e.to_string())?.1)
+        };
+        let train = idx
+            .iter()
+            .map(|&i| one(&action.train[i], false, i as u64))
+            .collect::<Result<_, _>>()?;
+        let test = action
+            .test
+            .iter()
+            .enumerate()
+            .map(|(k, t)| one(t, true, (1 << 31) + k as u64))
+            .collect::<Result<_, _>>()?;
+        Ok((train, test))
     }
 }
 
@@ -186,15 +308,21 @@ struct SeedResult {
     states: usize,
 }
 
+/// One seed of one method; `removed` holds the seed's training and test
+/// features with values removed ([`Removal`]), when the protocol asks for it.
 fn run_seed(
     prep: &Prepared,
     method: &Method,
     train_idx: &[usize],
     protocol: &Protocol,
+    removed: Option<&(Vec<Vec<f64>>, Vec<Vec<f64>>)>,
 ) -> Result<SeedResult, String> {
     let layout = &prep.layout;
     let d = layout.features.len();
-    let chosen: Vec<&Vec<f64>> = train_idx.iter().map(|&i| &prep.train[i]).collect();
+    let chosen: Vec<&Vec<f64>> = match removed {
+        Some((train, _)) => train.iter().collect(),
+        None => train_idx.iter().map(|&i| &prep.train[i]).collect(),
+    };
     let (shift, scale) = if protocol.standardise {
         let s = crate::model_file::Standardisation::fit(&chosen, d);
         (s.mean, s.std)
@@ -222,8 +350,8 @@ fn run_seed(
     let predictor = model.predictor(&roles).map_err(|e| e.to_string())?;
     let o = layout.robot.len();
     let (mut se, mut frames, mut predict_seconds) = (0.0, 0usize, 0.0);
-    for test in &prep.test {
-        let normed = norm(test);
+    for (k, test) in prep.test.iter().enumerate() {
+        let normed = norm(removed.map_or(test, |(_, t)| &t[k]));
         let human = phasekit_tsc::preset::human_frames(
             Frames::new(&normed, d).map_err(|e| e.to_string())?,
             &roles,
@@ -290,10 +418,17 @@ pub fn evaluate_action(
         .into_par_iter()
         .map(|seed| {
             let idx = subset(seed, n, size);
+            let removed = protocol
+                .removal
+                .map(|r| r.features(action, spec, seed, &idx))
+                .transpose();
             methods
                 .iter()
                 .map(|m| {
-                    let r = run_seed(&prep, &m.method, &idx, protocol);
+                    let r = removed
+                        .as_ref()
+                        .map_err(Clone::clone)
+                        .and_then(|rm| run_seed(&prep, &m.method, &idx, protocol, rm.as_ref()));
                     progress();
                     r
                 })

@@ -48,6 +48,21 @@ fn cluster_colour(i: usize) -> RGBColor {
     CLUSTER_COLOURS[i % CLUSTER_COLOURS.len()]
 }
 
+/// Splits a polyline at points with a non-finite coordinate (missing values),
+/// so that a gap in the data is a gap in the line, not a jump to infinity.
+fn finite_runs(points: impl IntoIterator<Item = (f64, f64)>) -> Vec<Vec<(f64, f64)>> {
+    let mut runs = vec![Vec::new()];
+    for p in points {
+        if p.0.is_finite() && p.1.is_finite() {
+            runs.last_mut().expect("never empty").push(p);
+        } else if !runs.last().expect("never empty").is_empty() {
+            runs.push(Vec::new());
+        }
+    }
+    runs.retain(|r| !r.is_empty());
+    runs
+}
+
 fn draw_err(e: impl std::fmt::Display) -> CliError {
     CliError::new(format!("cannot draw the picture: {e}"))
 }
@@ -188,16 +203,17 @@ pub fn segmentation_svg(mf: &ModelFile, table: &Table) -> Result<String> {
             }
             for (j, &k) in dims.iter().enumerate() {
                 let style = [BLACK, RGBColor(90, 90, 90), RGBColor(160, 160, 160)][j % 3];
-                chart
-                    .draw_series(LineSeries::new(
-                        (0..n).map(|t| (t as f64, joint[t * d + k])),
-                        style.stroke_width(2),
-                    ))
-                    .map_err(draw_err)?
-                    .label(l.features[k].clone())
-                    .legend(move |(x, y)| {
-                        PathElement::new(vec![(x, y), (x + 14, y)], style.stroke_width(2))
-                    });
+                let runs = finite_runs((0..n).map(|t| (t as f64, joint[t * d + k])));
+                for (r, run) in runs.into_iter().enumerate() {
+                    let s = chart
+                        .draw_series(LineSeries::new(run, style.stroke_width(2)))
+                        .map_err(draw_err)?;
+                    if r == 0 {
+                        s.label(l.features[k].clone()).legend(move |(x, y)| {
+                            PathElement::new(vec![(x, y), (x + 14, y)], style.stroke_width(2))
+                        });
+                    }
+                }
             }
             chart
                 .configure_series_labels()
@@ -226,13 +242,22 @@ pub fn prediction_svg(mf: &ModelFile, table: &Table) -> Result<String> {
         .as_ref()
         .ok_or_else(|| CliError::new("the predictor gave no covariance"))?;
     let dims: Vec<usize> = l.robot_positions.clone();
-    let mut se = 0.0;
+    let (mut se, mut scored) = (0.0, 0usize);
     for t in 0..n {
+        // Frames whose true robot position is not fully observed are not scored.
+        if dims.iter().any(|&j| joint[t * d + l.robot[j]].is_nan()) {
+            continue;
+        }
         for &j in &dims {
             se += (pred.mean[t * o + j] - joint[t * d + l.robot[j]]).powi(2);
         }
+        scored += 1;
     }
-    let mse = se / n.max(1) as f64;
+    let mse = se / scored.max(1) as f64;
+    // Frames where some of the human's values are missing: shaded in every panel.
+    let unobserved: Vec<bool> = (0..n)
+        .map(|t| l.human.iter().any(|&k| joint[t * d + k].is_nan()))
+        .collect();
     let mut svg = String::new();
     {
         let height = 60 + 240 * dims.len() as u32;
@@ -284,16 +309,37 @@ pub fn prediction_svg(mf: &ModelFile, table: &Table) -> Result<String> {
                 .legend(move |(x, y)| {
                     Rectangle::new([(x, y - 6), (x + 14, y + 6)], blue.mix(0.2).filled())
                 });
-            chart
-                .draw_series(LineSeries::new(
-                    (0..n).map(|t| (t as f64, truth[t])),
-                    BLACK.stroke_width(2),
-                ))
-                .map_err(draw_err)?
-                .label("true")
-                .legend(|(x, y)| {
-                    PathElement::new(vec![(x, y), (x + 14, y)], BLACK.stroke_width(2))
+            if unobserved.iter().any(|u| *u) {
+                let (ylo, yhi) = {
+                    let r = padded(lo, hi);
+                    (r.start, r.end)
+                };
+                let grey = RGBColor(120, 120, 120).mix(0.15);
+                let shaded = chart
+                    .draw_series((0..n).filter(|&t| unobserved[t]).map(|t| {
+                        Rectangle::new(
+                            [(t as f64 - 0.5, ylo), (t as f64 + 0.5, yhi)],
+                            grey.filled(),
+                        )
+                    }))
+                    .map_err(draw_err)?;
+                shaded.label("human values missing").legend(move |(x, y)| {
+                    Rectangle::new([(x, y - 6), (x + 14, y + 6)], grey.filled())
                 });
+            }
+            for (r, run) in finite_runs((0..n).map(|t| (t as f64, truth[t])))
+                .into_iter()
+                .enumerate()
+            {
+                let s = chart
+                    .draw_series(LineSeries::new(run, BLACK.stroke_width(2)))
+                    .map_err(draw_err)?;
+                if r == 0 {
+                    s.label("true").legend(|(x, y)| {
+                        PathElement::new(vec![(x, y), (x + 14, y)], BLACK.stroke_width(2))
+                    });
+                }
+            }
             chart
                 .draw_series(LineSeries::new(
                     (0..n).map(|t| (t as f64, mean[t])),
@@ -710,17 +756,18 @@ pub fn states_svg_projected(mf: &ModelFile, tables: &[Table], proj: &Projection)
                 .map_err(draw_err)?;
         }
         let grey = RGBColor(150, 150, 150);
-        for (i, tr) in trajs.iter().enumerate() {
-            let s = chart
-                .draw_series(LineSeries::new(
-                    tr.iter().copied(),
-                    grey.mix(0.7).stroke_width(1),
-                ))
-                .map_err(draw_err)?;
-            if i == 0 {
-                s.label("demonstrations").legend(move |(x, y)| {
-                    PathElement::new(vec![(x, y), (x + 14, y)], grey.stroke_width(1))
-                });
+        let mut labelled = false;
+        for tr in &trajs {
+            for run in finite_runs(tr.iter().copied()) {
+                let s = chart
+                    .draw_series(LineSeries::new(run, grey.mix(0.7).stroke_width(1)))
+                    .map_err(draw_err)?;
+                if !labelled {
+                    labelled = true;
+                    s.label("demonstrations").legend(move |(x, y)| {
+                        PathElement::new(vec![(x, y), (x + 14, y)], grey.stroke_width(1))
+                    });
+                }
             }
         }
         for (e, c) in ellipses.iter().zip(&contours) {

@@ -334,8 +334,14 @@ impl Method {
         }
     }
 
-    /// Fits the method to joint training sequences.
+    /// Fits the method to joint training sequences (NaN values are missing).
     pub fn fit(&self, data: &SequenceSet, roles: &Roles) -> Result<(Model, FitSummary)> {
+        let (model, mut summary) = self.fit_inner(data, roles)?;
+        summary.missing_values = data.all_frames().missing_count();
+        Ok((model, summary))
+    }
+
+    fn fit_inner(&self, data: &SequenceSet, roles: &Roles) -> Result<(Model, FitSummary)> {
         roles.check(data.dim())?;
         match self {
             Method::Hmm(s) => {
@@ -344,7 +350,7 @@ impl Method {
                 let mut summary = FitSummary::from_hmm(&r);
                 if let Some(sel) = selection {
                     summary.fit_seconds = clock.elapsed().as_secs_f64();
-                    summary.with_selection(&sel);
+                    summary.with_selection(&sel, s);
                 }
                 Ok((Model::Hmm(hmm), summary))
             }
@@ -358,7 +364,7 @@ impl Method {
                 if let Some(sel) = &r.selection {
                     // The choice of λ's states costs one fit per candidate.
                     summary.fit_seconds = clock.elapsed().as_secs_f64();
-                    summary.with_selection(sel);
+                    summary.with_selection(sel, &s.base);
                 }
                 summary.transition_segments = Some(r.segments);
                 Ok((
@@ -480,6 +486,10 @@ pub fn cross_validate(
                         return f64::INFINITY;
                     };
                     for (t, x) in seq.iter().enumerate() {
+                        // A frame whose robot values are not all observed is not scored.
+                        if roles.robot.iter().any(|&r| x[r].is_nan()) {
+                            continue;
+                        }
                         se += roles
                             .robot
                             .iter()
@@ -538,47 +548,98 @@ pub struct FitSummary {
     /// `(states, BIC)` of every candidate of an automatic choice of states.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub bic: Vec<(usize, f64)>,
+    /// Added to every covariance diagonal at every M-step (the `reg` setting; in
+    /// the features' units squared: m² for NuiSI, 1 for standardised features).
+    #[serde(default)]
+    pub regularisation: f64,
+    /// States (components) that received no weight in the last M-step and kept
+    /// their previous parameters: fewer states would do.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub empty_states: Vec<usize>,
+    /// States whose covariance was not positive definite at some M-step even
+    /// after the regularisation and got the `jitter` on its diagonal.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub jittered_states: Vec<usize>,
+    /// Values of the training data that were missing (NaN, an empty cell).
+    #[serde(default)]
+    pub missing_values: usize,
 }
 
 impl FitSummary {
-    fn with_selection(&mut self, sel: &phasekit_gmm::Selection) {
-        self.chosen = Some(format!("states={} (BIC)", sel.best));
+    fn with_selection(&mut self, sel: &phasekit_gmm::Selection, settings: &HmmSettings) {
+        let how = match settings.auto_states.map(|a| a.selector) {
+            Some(Selector::GMeans) => "G-means",
+            _ => "BIC",
+        };
+        self.chosen = Some(format!("states={} ({how})", sel.best));
         self.bic = sel.scores.clone();
     }
 
     fn from_hmm(r: &phasekit_hmm::FitReport) -> Self {
-        FitSummary {
-            iterations: r.iterations,
-            log_likelihood: r.log_likelihood.clone(),
-            converged: r.converged,
-            fit_seconds: r.fit_seconds,
-            jitter: r
-                .m_steps
-                .iter()
-                .map(|m| m.total_jitter())
-                .fold(0.0, f64::max),
-            transition_segments: None,
-            chosen: None,
-            cv_errors: Vec::new(),
-            bic: Vec::new(),
-        }
+        Self::from_parts(
+            r.iterations,
+            &r.log_likelihood,
+            r.converged,
+            r.fit_seconds,
+            &r.m_steps,
+        )
     }
 
     fn from_gmm(r: &phasekit_gmm::GmmFitReport) -> Self {
+        Self::from_parts(
+            r.iterations,
+            &r.log_likelihood,
+            r.converged,
+            r.fit_seconds,
+            &r.m_steps,
+        )
+    }
+
+    fn from_parts(
+        iterations: usize,
+        log_likelihood: &[f64],
+        converged: bool,
+        fit_seconds: f64,
+        m_steps: &[phasekit_emission::MStepReport],
+    ) -> Self {
+        use phasekit_emission::MStepEvent;
+        let mut jittered: Vec<usize> = m_steps
+            .iter()
+            .flat_map(|m| &m.events)
+            .filter_map(|e| match e {
+                MStepEvent::Jitter { state, .. } => Some(*state),
+                _ => None,
+            })
+            .collect();
+        jittered.sort_unstable();
+        jittered.dedup();
+        let mut empty: Vec<usize> = m_steps
+            .last()
+            .map(|m| {
+                m.events
+                    .iter()
+                    .filter_map(|e| match e {
+                        MStepEvent::KeptEmptyState { state, .. } => Some(*state),
+                        _ => None,
+                    })
+                    .collect()
+            })
+            .unwrap_or_default();
+        empty.dedup();
         FitSummary {
-            iterations: r.iterations,
-            log_likelihood: r.log_likelihood.clone(),
-            converged: r.converged,
-            fit_seconds: r.fit_seconds,
-            jitter: r
-                .m_steps
-                .iter()
-                .map(|m| m.total_jitter())
-                .fold(0.0, f64::max),
+            iterations,
+            log_likelihood: log_likelihood.to_vec(),
+            converged,
+            fit_seconds,
+            jitter: m_steps.iter().map(|m| m.total_jitter()).fold(0.0, f64::max),
             transition_segments: None,
             chosen: None,
             cv_errors: Vec::new(),
             bic: Vec::new(),
+            regularisation: m_steps.iter().map(|m| m.added_diagonal).fold(0.0, f64::max),
+            empty_states: empty,
+            jittered_states: jittered,
+            missing_values: 0,
         }
     }
 }

@@ -299,7 +299,8 @@ pub fn disagreement_flags(
     data.iter().map(|seq| detector.flags(seq)).collect()
 }
 
-/// Squared prediction error of the robot dims by HMM-GMR from the human dims, per frame.
+/// Squared prediction error of the robot dims by HMM-GMR from the human dims,
+/// per frame, summed over the robot values that are observed.
 pub fn prediction_errors(
     hmm: &Hmm<Gaussian>,
     roles: &Roles,
@@ -315,10 +316,13 @@ pub fn prediction_errors(
                 .iter()
                 .enumerate()
                 .map(|(t, x)| {
+                    // Missing robot values (NaN) are not scored: such a frame is
+                    // never "badly predicted" for lack of a value to compare with.
                     roles
                         .robot
                         .iter()
                         .enumerate()
+                        .filter(|(_, &r)| !x[r].is_nan())
                         .map(|(j, &r)| (pred.mean[t * o + j] - x[r]).powi(2))
                         .sum()
                 })

@@ -89,11 +89,22 @@ fn metric_text(spec: &FeatureSpec, p: &Protocol) -> String {
          ({}² for data in metres with unit_scale 100); RMSE = √MSE per seed; mean ± population std over seeds. \
          Seed s trains on a random subset ({} training demonstrations, drawn with ChaCha8 from seed s). \
          paired_change = mean over seeds of (MSE − MSE_reference) / MSE_reference; paired_won = fraction of seeds with a lower MSE; the same against the second method in the *_second fields. \
-         constant-mean predicts the mean robot position of all training demonstrations at every frame.",
+         constant-mean predicts the mean robot position of all training demonstrations at every frame.{}",
         spec.robot.join(", "),
         p.unit_scale,
         unit(p.unit_scale),
-        p.train_size.map_or("all but two".to_string(), |n| n.to_string())
+        p.train_size.map_or("all but two".to_string(), |n| n.to_string()),
+        p.removal.map_or(String::new(), |r| format!(
+            " Robustness run: {:.0} % of the selected values removed at random ({}) from every seed's training \
+             demonstrations and from the test demonstrations' human columns, before the velocities are computed; \
+             the truth stays complete.",
+            100.0 * r.fraction,
+            match r.mode {
+                crate::experiment::RemovalMode::Values => "each value independently",
+                crate::experiment::RemovalMode::Frames => "whole frames",
+                crate::experiment::RemovalMode::Occlusions => "runs of 10 frames of one side",
+            }
+        ))
     )
 }
 
@@ -407,11 +418,17 @@ pub fn run(a: &EvaluateArgs) -> Result<()> {
         }
         actions.retain(|x| wanted.contains(&x.name));
     }
+    let removal = a
+        .missing
+        .map(|f| crate::experiment::Removal::new(f, a.missing_mode))
+        .transpose()
+        .map_err(|e| CliError::new(format!("--missing: {e}")))?;
     let protocol = Protocol {
         seeds: a.seeds,
         train_size: a.train_size,
         unit_scale: a.unit_scale,
         standardise: a.model.standardise,
+        removal,
     };
     let report = evaluate(
         &a.data, actions, &spec, defaults, &methods, &options, &protocol,

@@ -185,7 +185,31 @@ fn summary_line(r: &FitReport) -> String {
         r.fit.iterations,
         if r.fit.converged { "converged" } else { "stopped at --max-iter" },
         r.model_file.as_ref().map(|p| format!("; model written to {}", p.display())).unwrap_or_default()
-    )
+    ) + &notes(r)
+}
+
+/// What the fit had to do beyond the plain algorithm, one clause each.
+fn notes(r: &FitReport) -> String {
+    let mut notes = Vec::new();
+    if r.fit.missing_values > 0 {
+        notes.push(format!("{} missing values left out", r.fit.missing_values));
+    }
+    if !r.fit.jittered_states.is_empty() {
+        notes.push(format!(
+            "states {:?} needed extra jitter (up to {:e}) to stay positive definite: consider a larger --reg",
+            r.fit.jittered_states, r.fit.jitter
+        ));
+    }
+    if !r.fit.empty_states.is_empty() {
+        notes.push(format!(
+            "states {:?} received no frame and kept their initial parameters: fewer --states would do",
+            r.fit.empty_states
+        ));
+    }
+    notes
+        .iter()
+        .map(|n| format!("\nphasekit: note: {n}"))
+        .collect()
 }
 
 fn markdown(r: &FitReport) -> String {
@@ -208,6 +232,27 @@ fn markdown(r: &FitReport) -> String {
         ),
         ("iterations", r.fit.iterations.to_string()),
         ("converged", r.fit.converged.to_string()),
+        (
+            "regularisation (added to every covariance diagonal)",
+            format!("{:e}", r.fit.regularisation),
+        ),
+        (
+            "extra jitter (largest)",
+            if r.fit.jittered_states.is_empty() {
+                "none".into()
+            } else {
+                format!("{:e} on states {:?}", r.fit.jitter, r.fit.jittered_states)
+            },
+        ),
+        (
+            "states with no weight (kept unchanged)",
+            if r.fit.empty_states.is_empty() {
+                "none".into()
+            } else {
+                format!("{:?}: fewer states would do", r.fit.empty_states)
+            },
+        ),
+        ("missing values", r.fit.missing_values.to_string()),
         ("final log-likelihood", ll),
         ("fit time (s)", format!("{:.3}", r.fit.fit_seconds)),
         (
