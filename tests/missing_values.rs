@@ -304,14 +304,17 @@ proptest! {
                     .chunks_exact(d)
                     .map(|f| textbook_conditional(g.mean(i), &cov, f))
                     .collect();
-                let n: f64 = (0..t).map(|tt| w[tt * s + i]).sum();
+                // Frames with nothing observed do not enter the statistics.
+                let seen: Vec<bool> = x.chunks_exact(d).map(|f| f.iter().any(|v| !v.is_nan())).collect();
+                let wt = |tt: usize| if seen[tt] { w[tt * s + i] } else { 0.0 };
+                let n: f64 = (0..t).map(wt).sum();
                 let mu: Vec<f64> = (0..d)
-                    .map(|k| (0..t).map(|tt| w[tt * s + i] * filled[tt].0[k]).sum::<f64>() / n)
+                    .map(|k| (0..t).map(|tt| wt(tt) * filled[tt].0[k]).sum::<f64>() / n)
                     .collect();
                 let mut scatter = DMatrix::zeros(d, d);
                 for (tt, (xh, c)) in filled.iter().enumerate() {
                     let e = DVector::from_iterator(d, xh.iter().zip(&mu).map(|(a, b)| a - b));
-                    scatter += (&e * e.transpose() + c) * w[tt * s + i];
+                    scatter += (&e * e.transpose() + c) * wt(tt);
                 }
                 for k in 0..d {
                     prop_assert!(close(fitted.mean(i)[k], mu[k], 1e-9),
@@ -362,11 +365,13 @@ proptest! {
         let mut fitted = pois.clone();
         fitted.m_step(&st, &Regularization::none()).unwrap();
         for i in 0..2 {
-            let n: f64 = (0..t).map(|tt| w[tt * 2 + i]).sum();
+            // Frames with no count observed do not enter the statistics.
+            let wt = |tt: usize| if x[tt * 2].is_nan() && x[tt * 2 + 1].is_nan() { 0.0 } else { w[tt * 2 + i] };
+            let n: f64 = (0..t).map(wt).sum();
             for k in 0..2 {
                 let want = (0..t).map(|tt| {
                     let v = x[tt * 2 + k];
-                    w[tt * 2 + i] * if v.is_nan() { rates[i * 2 + k] } else { v }
+                    wt(tt) * if v.is_nan() { rates[i * 2 + k] } else { v }
                 }).sum::<f64>() / n;
                 prop_assert!(close(fitted.rates()[i * 2 + k], want, 1e-12));
             }
@@ -380,11 +385,10 @@ proptest! {
         let mut fitted = cat.clone();
         fitted.m_step(&st, &Regularization::none()).unwrap();
         for i in 0..2 {
-            let n: f64 = (0..t).map(|tt| w[tt * 2 + i]).sum();
+            // A missing symbol does not enter the counts.
+            let n: f64 = (0..t).filter(|&tt| !y[tt].is_nan()).map(|tt| w[tt * 2 + i]).sum();
             for j in 0..3 {
-                let want = (0..t).map(|tt| w[tt * 2 + i] * if y[tt].is_nan() {
-                    probs[i * 3 + j]
-                } else if y[tt] as usize == j { 1.0 } else { 0.0 }).sum::<f64>() / n;
+                let want = (0..t).filter(|&tt| !y[tt].is_nan()).map(|tt| w[tt * 2 + i] * if y[tt] as usize == j { 1.0 } else { 0.0 }).sum::<f64>() / n;
                 prop_assert!(close(fitted.probabilities()[i * 3 + j], want, 1e-12));
             }
         }

@@ -215,15 +215,9 @@ impl Emission for Categorical {
                 for i in 0..s {
                     stats.counts[i * k + sym] += weights[t * s + i];
                 }
-            } else if x.is_nan() {
-                // Not observed: expected counts `w · p_i(j)` under the current model.
-                for i in 0..s {
-                    let w = weights[t * s + i];
-                    for j in 0..k {
-                        stats.counts[i * k + j] += w * self.probabilities[i * k + j];
-                    }
-                }
             }
+            // A missing symbol (NaN) has probability 1 under every state whatever
+            // the parameters: it adds nothing to their statistics.
         }
         Ok(())
     }

@@ -802,7 +802,8 @@ impl Gaussian {
     /// `E[(x − c)(x − c)ᵀ | x_o] = (x̂ − c)(x̂ − c)ᵀ + Cov(x | x_o)`.
     /// For a placeholder template (whose parameters mean nothing yet) the
     /// missing values take the reference point with no variance; the
-    /// initialisations iterate from there ([`crate::fit_weighted`]).
+    /// initialisations iterate from there ([`crate::fit_weighted`]). Frames
+    /// with nothing observed add nothing.
     fn accumulate_missing(
         &self,
         frames: Frames<'_>,
@@ -821,6 +822,15 @@ impl Gaussian {
                 return Ok(());
             }
             let x = frames.frame(range.start);
+            // A frame with nothing observed does not depend on the emission
+            // parameters at all (its density is 1), so it is left out of their
+            // statistics: EM with the observed values of the other frames as
+            // the data. (Adding its expected statistics would give the same
+            // fixed points, more slowly, and would carry an added-diagonal
+            // regularisation of the current covariances into the next M-step.)
+            if x.iter().all(|v| v.is_nan()) {
+                return Ok(());
+            }
             let imp = if stats.anchor_lazily {
                 None
             } else {

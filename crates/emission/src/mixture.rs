@@ -219,7 +219,10 @@ impl<E: Emission> Emission for Mixture<E> {
             for i in 0..s {
                 self.joint_terms(i, frames, scratch)?;
                 for (tt, row) in scratch.chunks_exact_mut(m).enumerate() {
-                    let g = weights[tt * s + i];
+                    // A frame with nothing observed adds nothing (its density is 1).
+                    let unobserved =
+                        frames.has_missing() && frames.frame(tt).iter().all(|v| v.is_nan());
+                    let g = if unobserved { 0.0 } else { weights[tt * s + i] };
                     let lse = log_sum_exp(row);
                     for (k, v) in row.iter_mut().enumerate() {
                         *v = if g == 0.0 || lse == f64::NEG_INFINITY {

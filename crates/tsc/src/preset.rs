@@ -563,6 +563,14 @@ pub struct FitSummary {
     /// Values of the training data that were missing (NaN, an empty cell).
     #[serde(default)]
     pub missing_values: usize,
+    /// The run stopped because the log-likelihood fell (an added-diagonal
+    /// regularisation makes EM non-monotone; the protocol stops there).
+    #[serde(default)]
+    pub stopped_on_decrease: bool,
+    /// What looks wrong with the training data for this model (set by callers
+    /// that know the data's meaning, e.g. the command line).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub warnings: Vec<String>,
 }
 
 impl FitSummary {
@@ -640,6 +648,8 @@ impl FitSummary {
             empty_states: empty,
             jittered_states: jittered,
             missing_values: 0,
+            stopped_on_decrease: converged && matches!(log_likelihood, [.., a, b] if b < a),
+            warnings: Vec::new(),
         }
     }
 }

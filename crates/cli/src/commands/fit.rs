@@ -38,6 +38,37 @@ pub struct FitReport {
     pub model_file: Option<PathBuf>,
 }
 
+/// Warnings about training features `seqs` (`T × d` each, as the model sees
+/// them) for a regularisation `reg`: features never observed, and a
+/// regularisation larger than every feature's variance (which leaves the
+/// states indistinguishable: the data are on a much smaller scale than `reg`).
+pub fn data_warnings(seqs: &[Vec<f64>], names: &[String], reg: f64) -> Vec<String> {
+    let s = Standardisation::fit(seqs, names.len());
+    let mut out = Vec::new();
+    let never: Vec<&str> = (0..names.len())
+        .filter(|&k| {
+            seqs.iter()
+                .flat_map(|q| q.chunks_exact(names.len()))
+                .all(|f| f[k].is_nan())
+        })
+        .map(|k| names[k].as_str())
+        .collect();
+    if !never.is_empty() {
+        out.push(format!(
+            "features never observed in the training data: {} (the model keeps their initial mean and the regularisation as variance)",
+            never.join(", ")
+        ));
+    }
+    let largest = s.std.iter().map(|v| v * v).fold(0.0, f64::max);
+    if reg > 0.0 && largest > 0.0 && reg > largest {
+        out.push(format!(
+            "the regularisation {reg:e} exceeds the variance of every feature (largest {largest:.3e}): \
+             the states cannot be told apart at this scale; use --standardise or a --reg well below {largest:.1e}"
+        ));
+    }
+    out
+}
+
 /// Features of training tables under a spec; errors name the file.
 pub fn training_features(
     tables: &[Table],
@@ -79,7 +110,7 @@ pub fn fit_tables(
         human: layout.human.clone(),
         robot: layout.robot.clone(),
     };
-    let (model, summary) = named
+    let (model, mut summary) = named
         .method
         .fit(&data, &roles)
         .map_err(|e| {
@@ -97,6 +128,7 @@ pub fn fit_tables(
             }
             CliError::new(msg)
         })?;
+    summary.warnings = data_warnings(&seqs, &layout.features, summary.regularisation);
     Ok(ModelFile::new(
         layout,
         spec.clone(),
@@ -200,6 +232,14 @@ fn notes(r: &FitReport) -> String {
             r.fit.jittered_states, r.fit.jitter
         ));
     }
+    if r.fit.stopped_on_decrease {
+        notes.push(
+            "EM stopped because the log-likelihood fell (the regularisation added after every M-step makes EM non-monotone): \
+             the model may be far from a good fit; try a smaller --reg or --standardise"
+                .to_string(),
+        );
+    }
+    notes.extend(r.fit.warnings.iter().cloned());
     if !r.fit.empty_states.is_empty() {
         notes.push(format!(
             "states {:?} received no frame and kept their initial parameters: fewer --states would do",
@@ -253,6 +293,18 @@ fn markdown(r: &FitReport) -> String {
             },
         ),
         ("missing values", r.fit.missing_values.to_string()),
+        (
+            "stopped because the log-likelihood fell",
+            r.fit.stopped_on_decrease.to_string(),
+        ),
+        (
+            "warnings",
+            if r.fit.warnings.is_empty() {
+                "none".into()
+            } else {
+                r.fit.warnings.join("; ")
+            },
+        ),
         ("final log-likelihood", ll),
         ("fit time (s)", format!("{:.3}", r.fit.fit_seconds)),
         (
