@@ -351,7 +351,7 @@ impl Gaussian {
         &self.means
     }
 
-    /// Mean of state `i`.
+    /// Mean of state `i`. Panics if `i ≥ S` (like slice indexing).
     pub fn mean(&self, i: usize) -> &[f64] {
         &self.means[i * self.dim..(i + 1) * self.dim]
     }
@@ -362,6 +362,7 @@ impl Gaussian {
     }
 
     /// The full `D × D` covariance of state `i`, whatever the structure.
+    /// Panics if `i ≥ S` (like slice indexing).
     pub fn covariance(&self, i: usize) -> DMatrix<f64> {
         let d = self.dim;
         match self.kind {
@@ -376,7 +377,7 @@ impl Gaussian {
         }
     }
 
-    /// The lower Cholesky factor `L` of `Σ_i` (`Σ_i = L Lᵀ`).
+    /// The lower Cholesky factor `L` of `Σ_i` (`Σ_i = L Lᵀ`). Panics if `i ≥ S`.
     pub fn cholesky_factor(&self, i: usize) -> DMatrix<f64> {
         let d = self.dim;
         match self.kind {
@@ -391,14 +392,31 @@ impl Gaussian {
         }
     }
 
-    /// `log|Σ_i|`.
+    /// `log|Σ_i|`. Panics if `i ≥ S`.
     pub fn log_det(&self, i: usize) -> f64 {
         -2.0 * (self.log_norm[i] + 0.5 * self.dim as f64 * (2.0 * PI).ln())
     }
 
-    /// `log N(x; μ_i, Σ_i)` of one frame, no allocation for `D ≤ 64`.
+    /// `log N(x; μ_i, Σ_i)` of one complete frame `x` (length `D`, finite),
+    /// no allocation for `D ≤ 64`. Errors name a wrong state, length or value;
+    /// frames with missing values go through [`Emission::log_density_into`].
+    pub fn log_density_one(&self, i: usize, x: &[f64]) -> Result<f64> {
+        check_state(i, self.n_states)?;
+        check_len("frame", self.dim, x.len())?;
+        if let Some(k) = x.iter().position(|v| !v.is_finite()) {
+            return Err(EmissionError::InvalidValue {
+                frame: 0,
+                column: k,
+                value: x[k],
+                reason: "log_density_one needs a complete, finite frame",
+            });
+        }
+        Ok(self.log_density_raw(i, x))
+    }
+
+    /// [`Gaussian::log_density_one`] without checks: `i < S`, `x.len() == D`.
     #[inline]
-    pub fn log_density_one(&self, i: usize, x: &[f64]) -> f64 {
+    fn log_density_raw(&self, i: usize, x: &[f64]) -> f64 {
         let d = self.dim;
         let mu = self.mean(i);
         let maha = match self.kind {
@@ -488,9 +506,9 @@ impl Gaussian {
     fn full_one_frame(&self, x: &[f64], out: &mut [f64]) {
         let (s, d) = (self.n_states, self.dim);
         let (pl, sl) = (packed_len(d), linalg::STATE_LANES);
-        let mut stack = [0.0; 32 * linalg::STATE_LANES];
+        let mut stack = [0.0; 64 * linalg::STATE_LANES];
         let mut heap = Vec::new();
-        let xc: &mut [f64] = if d <= 32 {
+        let xc: &mut [f64] = if d <= 64 {
             &mut stack[..d * sl]
         } else {
             heap.resize(d * sl, 0.0);
@@ -683,7 +701,7 @@ impl Gaussian {
                 continue;
             }
             for (i, o) in row.iter_mut().enumerate() {
-                *o = self.log_density_one(i, x);
+                *o = self.log_density_raw(i, x);
             }
         }
     }
@@ -714,7 +732,7 @@ impl Gaussian {
             xo.clear();
             xo.extend(obs.iter().map(|&k| x[k]));
             for (i, o) in rows.iter_mut().enumerate() {
-                *o = m.log_density_one(i, &xo);
+                *o = m.log_density_raw(i, &xo);
             }
             Ok(())
         })
@@ -1592,10 +1610,15 @@ impl Emission for Gaussian {
                 } else {
                     &self.factor[..]
                 };
-                let z: Vec<f64> = (0..d).map(|_| rng.sample(StandardNormal)).collect();
-                linalg::packed_lower_mul(l, &z, out);
-                for (o, m) in out.iter_mut().zip(mu) {
-                    *o += m;
+                // x = μ + L z, in place: row r of L z needs z_0..z_r only, so
+                // going from the last row up never reads an overwritten z.
+                for o in out.iter_mut() {
+                    *o = rng.sample(StandardNormal);
+                }
+                for r in (0..d).rev() {
+                    let row = &l[r * (r + 1) / 2..r * (r + 1) / 2 + r + 1];
+                    let v: f64 = row.iter().zip(&out[..=r]).map(|(a, b)| a * b).sum();
+                    out[r] = mu[r] + v;
                 }
             }
             CovarianceType::Diagonal => {
@@ -1667,7 +1690,11 @@ mod blocked_paths {
                 let all = g.log_density(frames).unwrap();
                 let one: Vec<f64> = x
                     .chunks_exact(d)
-                    .flat_map(|f| (0..s).map(|i| g.log_density_one(i, f)).collect::<Vec<_>>())
+                    .flat_map(|f| {
+                        (0..s)
+                            .map(|i| g.log_density_one(i, f).unwrap())
+                            .collect::<Vec<_>>()
+                    })
                     .collect();
                 assert_eq!(
                     bits(&all),
@@ -1684,7 +1711,7 @@ mod blocked_paths {
                 let done = g.full_blocks(&x, &mut portable);
                 for (tt, f) in x.chunks_exact(d).enumerate().skip(done) {
                     for i in 0..s {
-                        portable[tt * s + i] = g.log_density_one(i, f);
+                        portable[tt * s + i] = g.log_density_raw(i, f);
                     }
                 }
                 assert_eq!(

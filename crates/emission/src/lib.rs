@@ -42,6 +42,10 @@ pub mod error;
 pub mod frames;
 pub mod gaussian;
 pub mod kmeans;
+/// Dense kernels shared by the crates of the workspace (packed triangles,
+/// SIMD norms and tiles, log-sum-exp). Not a checked API: they assume shapes
+/// their callers have validated and panic otherwise.
+#[doc(hidden)]
 pub mod linalg;
 mod missing;
 pub mod mixture;

@@ -122,9 +122,29 @@ impl Conditional {
         })
     }
 
-    /// Writes the conditional mean `μ_o + R (x_i − μ_i)` into `out`.
+    /// Writes the conditional mean `μ_o + R (x_i − μ_i)` into `out` (length
+    /// `O`); `x_in` has length `I`. A buffer of another length is an error.
+    pub fn mean_into(&self, x_in: &[f64], out: &mut [f64]) -> Result<()> {
+        for (context, expected, found) in [
+            ("conditional: input frame", self.n_in, x_in.len()),
+            ("conditional: output buffer", self.n_out, out.len()),
+        ] {
+            if expected != found {
+                return Err(EmissionError::DimensionMismatch {
+                    context,
+                    expected,
+                    found,
+                }
+                .into());
+            }
+        }
+        self.mean_unchecked(x_in, out);
+        Ok(())
+    }
+
+    /// [`Conditional::mean_into`] on buffers of the right lengths.
     #[inline]
-    pub fn mean_into(&self, x_in: &[f64], out: &mut [f64]) {
+    pub(crate) fn mean_unchecked(&self, x_in: &[f64], out: &mut [f64]) {
         if self.n_in == 0 {
             out[..self.n_out].copy_from_slice(&self.mean_out);
             return;

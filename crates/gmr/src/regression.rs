@@ -187,7 +187,7 @@ impl Regression {
             if *hk == 0.0 {
                 continue;
             }
-            c.mean_into(x_in, mk);
+            c.mean_unchecked(x_in, mk);
             for (m, v) in mean.iter_mut().zip(mk.iter()) {
                 *m += hk * v;
             }

@@ -190,7 +190,7 @@ proptest! {
         for _ in 0..5 {
             let x: Vec<f64> = (0..input.len()).map(|_| r.random_range(-8.0..8.0)).collect();
             let mut got = vec![f64::NAN; output.len()];
-            c.mean_into(&x, &mut got);
+            c.mean_into(&x, &mut got).unwrap();
             assert_close("mean", &got, a.mean(&x).as_slice(), 1e-10);
         }
         // Conditioning on everything but the outputs, with the outputs listed
@@ -250,7 +250,7 @@ proptest! {
             assert_close("regression", c.regression(), &row_major(&a.regression), 1e-10);
             assert_close("covariance", c.covariance(), &row_major(&a.covariance), 1e-10);
             let mut got = vec![0.0; output.len()];
-            c.mean_into(&x, &mut got);
+            c.mean_into(&x, &mut got).unwrap();
             assert_close("mean", &got, a.mean(&x).as_slice(), 1e-10);
         }
     }
@@ -848,6 +848,12 @@ fn bad_frames_are_errors_not_panics() {
     }
     // The filter goes on after refused frames.
     assert!(online.step(&[0.5, 0.5, 0.5]).is_ok());
+    // A conditional refuses buffers of the wrong length instead of truncating.
+    let c = &hmm_gmr.regression().conditionals()[0];
+    let mut out = vec![0.0; c.n_out()];
+    assert!(c.mean_into(&[0.0; 2], &mut out).is_err());
+    assert!(c.mean_into(&vec![0.0; c.n_in()], &mut [0.0; 1]).is_err());
+    assert!(c.mean_into(&vec![0.0; c.n_in()], &mut out).is_ok());
 }
 
 #[test]
