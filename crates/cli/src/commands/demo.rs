@@ -95,6 +95,64 @@ fn score(mf: &ModelFile, tests: &[Table], truth: &[Interaction]) -> Result<Score
     })
 }
 
+/// What an HMM learned, one row per state: the mean positions of both hands
+/// (cm), the expected stay `1 / (1 − a_ii)` (frames) and the true phase of
+/// most test frames Viterbi assigns to the state.
+fn learned_table(mf: &ModelFile, tests: &[Table], truth: &[Interaction]) -> Result<String> {
+    let phasekit_tsc::Model::Hmm(h) = &mf.model else {
+        return Ok(String::new());
+    };
+    const PHASES: [&str; 5] = ["idle", "reach", "shake", "retract", "rest"];
+    let s = h.n_states();
+    let l = &mf.layout;
+    let mut votes = vec![[0usize; 5]; s];
+    for (t, inter) in tests.iter().zip(truth) {
+        let seg = segment_table(mf, t)?;
+        for (&z, &p) in seg.labels.iter().zip(&inter.phases) {
+            votes[z][p] += 1;
+        }
+    }
+    let cm = |dims: &[usize], i: usize| {
+        dims.iter()
+            // `+ 0.0` turns a rounded −0 into 0.
+            .map(|&k| format!("{:.0}", (100.0 * h.emission().mean(i)[k]).round() + 0.0))
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    let human: Vec<usize> = l.human[..l.human_columns.len()].to_vec();
+    let robot: Vec<usize> = l.robot_positions.iter().map(|&j| l.robot[j]).collect();
+    let mut out = String::from(
+        "| state | human hand x, y, z (cm) | robot hand x, y, z (cm) | expected stay (frames) | true phases of its test frames |\n|---:|---|---|---:|---|\n",
+    );
+    for i in 0..s {
+        let stay = 1.0 / (1.0 - h.transition()[i * s + i]).max(1e-12);
+        let total: usize = votes[i].iter().sum();
+        // Every phase with at least a fifth of the state's frames, largest first.
+        let mut shares: Vec<(usize, usize)> = votes[i]
+            .iter()
+            .copied()
+            .enumerate()
+            .filter(|(_, n)| total > 0 && 5 * n >= total)
+            .collect();
+        shares.sort_by_key(|(p, n)| (std::cmp::Reverse(*n), *p));
+        let phase = if shares.is_empty() {
+            "–".to_string()
+        } else {
+            shares
+                .iter()
+                .map(|(p, n)| format!("{} {:.0} %", PHASES[*p], 100.0 * *n as f64 / total as f64))
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
+        out += &format!(
+            "| {i} | {} | {} | {stay:.0} | {phase} |\n",
+            cm(&human, i),
+            cm(&robot, i)
+        );
+    }
+    Ok(out)
+}
+
 fn constant_mse(train: &[Table], test: &[Table]) -> f64 {
     let pos = |t: &Table| -> Vec<[f64; 3]> {
         t.data.chunks_exact(6).map(|r| [r[3], r[4], r[5]]).collect()
@@ -189,6 +247,11 @@ pub fn run(a: &DemoArgs) -> Result<()> {
         out,
         "\nMSE: squared error of the robot's hand position per frame, mean over the {} test demonstrations' frames, predicted\ncausally from the human's hand alone. Boundaries: the 4 true phase changes of each test demonstration; distance in\nframes to the nearest transition frame found (TSC) and to the nearest change of Viterbi state.",
         a.test
+    );
+    let _ = writeln!(
+        out,
+        "\nWhat the 4-state HMM learned (state means of both hands; expected stay 1/(1 − a_ii); the true phases of the test\nframes its Viterbi path gives to the state, those with at least 20 %):\n\n{}",
+        learned_table(&models[0].0, &test, test_demos)?
     );
     // Plots with the TSC-HMM.
     let (mf, model_path) = &models[1];
