@@ -243,6 +243,9 @@ pub struct FitArgs {
     /// Print a fit report on stdout (json: iterations, log-likelihood per iteration, time, …)
     #[arg(long, value_enum)]
     pub format: Option<Format>,
+    /// Shorthand for --format json
+    #[arg(long, conflicts_with = "format")]
+    pub json: bool,
 }
 
 const SEGMENT_EXAMPLES: &str = "\
@@ -269,6 +272,9 @@ pub struct SegmentArgs {
     /// csv (default) or json
     #[arg(long, value_enum, default_value = "csv")]
     pub format: Format,
+    /// Shorthand for --format json
+    #[arg(long)]
+    pub json: bool,
 }
 
 const PREDICT_EXAMPLES: &str = "\
@@ -300,6 +306,9 @@ pub struct PredictArgs {
     /// csv (default) or json ({"file", "features", "mean": [[…] per frame], "covariance": [[[…]]]})
     #[arg(long, value_enum, default_value = "csv")]
     pub format: Format,
+    /// Shorthand for --format json
+    #[arg(long)]
+    pub json: bool,
 }
 
 const STREAM_EXAMPLES: &str = "\
@@ -389,6 +398,9 @@ pub struct EvaluateArgs {
     /// What to print: md (default, the table and the metric's definition), json or csv
     #[arg(long, value_enum, default_value = "md")]
     pub format: Format,
+    /// Shorthand for --format json
+    #[arg(long)]
+    pub json: bool,
     /// Exit with an error (after printing) if any method's mean MSE is not finite or above X (reported units²)
     #[arg(long, value_name = "X")]
     pub fail_above: Option<f64>,

@@ -454,7 +454,7 @@ pub fn run(a: &EvaluateArgs) -> Result<()> {
             r.row.failures.len()
         );
     }
-    match a.format {
+    match if a.json { Format::Json } else { a.format } {
         Format::Json => output::print_stdout(&json)?,
         Format::Csv => output::print_stdout(&csv(&report))?,
         Format::Md => output::print_stdout(&md)?,

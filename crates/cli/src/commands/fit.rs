@@ -144,7 +144,8 @@ pub fn fit_tables(
 
 /// Runs `phasekit fit`.
 pub fn run(a: &FitArgs) -> Result<()> {
-    if a.output.is_none() && a.format.is_none() {
+    let format = if a.json { Some(Format::Json) } else { a.format };
+    if a.output.is_none() && format.is_none() {
         bail!("nothing to do: give -o MODEL.json to save the model (and/or --format json to print the fit report)");
     }
     setup_threads(a.model.threads)?;
@@ -181,7 +182,7 @@ pub fn run(a: &FitArgs) -> Result<()> {
         fit: mf.fit.clone(),
         model_file: a.output.clone(),
     };
-    match a.format {
+    match format {
         Some(Format::Json) => {
             let text =
                 serde_json::to_string_pretty(&report).map_err(|e| CliError::new(e.to_string()))?;

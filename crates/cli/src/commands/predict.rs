@@ -71,10 +71,11 @@ pub fn run(a: &PredictArgs) -> Result<()> {
         .iter()
         .map(|t| predict_table(&mf, &predictor, t, a.covariance))
         .collect::<Result<Vec<_>>>()?;
-    if a.format == Format::Md {
+    let format = if a.json { Format::Json } else { a.format };
+    if format == Format::Md {
         bail!("predict writes csv or json, not md");
     }
-    let json = a.format == Format::Json;
+    let json = format == Format::Json;
     let render = |i: usize| -> Result<String> {
         if json {
             prediction_json(&mf, &tables[i].path, &preds[i])

@@ -45,7 +45,8 @@ pub fn csv_rows(file: &str, seg: &Segmentation, out: &mut String) {
 
 /// Runs `phasekit segment`.
 pub fn run(a: &SegmentArgs) -> Result<()> {
-    if a.format == Format::Md {
+    let format = if a.json { Format::Json } else { a.format };
+    if format == Format::Md {
         bail!("segment writes csv or json, not md");
     }
     let mf = ModelFile::load(&a.model)?;
@@ -54,7 +55,7 @@ pub fn run(a: &SegmentArgs) -> Result<()> {
         .iter()
         .map(|t| segment_table(&mf, t))
         .collect::<Result<Vec<_>>>()?;
-    let text = match a.format {
+    let text = match format {
         Format::Json => {
             let v: Vec<FileSegmentation> = tables
                 .iter()
