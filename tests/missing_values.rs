@@ -827,3 +827,46 @@ fn mixture_recovery_with_missing_values() {
         );
     }
 }
+
+#[test]
+fn an_added_diagonal_is_not_compounded_by_missing_values() {
+    // Σ = S/n + rI after every M-step: the conditional covariance of a missing
+    // value must not carry r into the next M-step, or with a fraction f missing
+    // the variances settle near s + r/(1 − f) instead of s + r.
+    let mut rng = ChaCha8Rng::seed_from_u64(51);
+    let truth = Gmm::new(
+        vec![1.0],
+        Gaussian::full(2, vec![0.0, 0.0], vec![1.0, 0.5, 0.5, 1.0]).unwrap(),
+    )
+    .unwrap();
+    let (complete, _) = truth.sample(20_000, &mut rng).unwrap();
+    let mut holes = complete.clone();
+    knock_out(&mut holes, 2, 0.3, 0.0, &mut rng);
+    let em = Em::builder()
+        .regularization(Regularization::add_diagonal(0.5).unwrap())
+        .max_iter(500)
+        .tol(1e-12)
+        .build()
+        .unwrap();
+    let fit = |x: &[f64]| {
+        em.fit(
+            &Gaussian::standard(CovarianceType::Full, 1, 2).unwrap(),
+            Frames::new(x, 2).unwrap(),
+        )
+        .unwrap()
+        .model
+        .components()
+        .covariance(0)
+    };
+    let (a, b) = (fit(&complete), fit(&holes));
+    for k in 0..2 {
+        assert!((a[(k, k)] - 1.5).abs() < 0.05, "complete: {}", a[(k, k)]);
+        assert!(
+            (b[(k, k)] - a[(k, k)]).abs() < 0.05,
+            "30 % missing: variance {} vs complete {}",
+            b[(k, k)],
+            a[(k, k)]
+        );
+    }
+    assert!((b[(0, 1)] - a[(0, 1)]).abs() < 0.05);
+}

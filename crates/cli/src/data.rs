@@ -168,14 +168,15 @@ fn check_unique(path: &Path, columns: &[String]) -> Result<()> {
 }
 
 /// Parses a CSV cell: a number, or "not observed" (NaN) for an empty cell,
-/// `NaN` or `NA` (any case). `None` for anything else, including infinity.
+/// `NaN` (any case and sign) or `NA`. An error saying why for anything else,
+/// including infinity.
 pub fn parse_cell(cell: &str) -> std::result::Result<f64, &'static str> {
     let cell = cell.trim();
-    if cell.is_empty() || cell.eq_ignore_ascii_case("nan") || cell.eq_ignore_ascii_case("na") {
+    if cell.is_empty() || cell.eq_ignore_ascii_case("na") {
         return Ok(f64::NAN);
     }
     match cell.parse::<f64>() {
-        Ok(v) if v.is_finite() => Ok(v),
+        Ok(v) if v.is_finite() || v.is_nan() => Ok(v),
         Ok(_) => Err("not a finite number (infinity is refused; leave the cell empty or write NaN for a missing value)"),
         Err(_) => Err("not a number"),
     }

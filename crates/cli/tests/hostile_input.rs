@@ -103,14 +103,57 @@ proptest! {
     }
 }
 
+fn corpus_named(target: &str) -> Vec<(String, Vec<u8>)> {
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../../fuzz/corpus")
+        .join(target);
+    let mut files: Vec<PathBuf> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    files.sort();
+    files
+        .iter()
+        .map(|p| {
+            (
+                p.file_name().unwrap().to_string_lossy().into_owned(),
+                std::fs::read(p).unwrap(),
+            )
+        })
+        .collect()
+}
+
 #[test]
 fn the_seed_corpus_reads_as_expected() {
-    for f in corpus("csv_reader") {
+    // Which seeds are valid files and which are refused.
+    let csv_ok = [
+        "demo.csv",
+        "missing.csv",
+        "nuisi_head.csv",
+        "quoted_bom.csv",
+    ];
+    for (name, f) in corpus_named("csv_reader") {
         check_csv(&f);
+        let ok = read_csv_from(&f[..], Path::new(&name)).is_ok();
+        assert_eq!(ok, csv_ok.contains(&name.as_str()), "{name}");
     }
-    for f in corpus("npy_reader") {
+    let npy_ok = ["f4_fortran.npy", "f8_c.npy"];
+    for (name, f) in corpus_named("npy_reader") {
         check_npy(&f);
+        let ok = parse_npy(&f, Path::new(&name)).is_ok();
+        assert_eq!(ok, npy_ok.contains(&name.as_str()), "{name}");
     }
+    let missing = corpus_named("csv_reader")
+        .into_iter()
+        .find(|(n, _)| n == "missing.csv")
+        .unwrap()
+        .1;
+    let m = read_csv_from(&missing[..], Path::new("missing.csv")).unwrap();
+    assert_eq!(
+        m.data.iter().filter(|v| v.is_nan()).count(),
+        3,
+        "empty, NaN and NA are missing"
+    );
     // Every committed model file loads and predicts.
     for f in corpus("model_file") {
         let m =

@@ -72,6 +72,18 @@ fn json_flag_equals_format_json() {
         "--data",
         d,
     ]));
+    let b = keys(run(&[
+        "evaluate",
+        "--methods",
+        "hmm",
+        "--seeds",
+        "2",
+        "--format",
+        "json",
+        "--data",
+        d,
+    ]));
+    assert_eq!(a, b);
     assert!(a.contains(&"results".to_string()));
     phasekit()
         .args(["fit", "--json", "--format", "md", "-o", m, "--data", d])

@@ -131,7 +131,9 @@ fn fit_summary(r: &serde_json::Value) -> String {
         ));
     }
     if let Some(m) = r["missing_values"].as_u64().filter(|m| *m > 0) {
-        parts.push(format!("{m} missing values left out"));
+        parts.push(format!(
+            "{m} missing feature values (their expected statistics used)"
+        ));
     }
     if let Some(s) = r["transition_segments"].as_u64() {
         parts.push(format!("{s} transition segments"));
@@ -226,7 +228,7 @@ fn degenerate_cases(root: &Path) -> Vec<Row> {
             write_set(&d.join("data"), &collinear, |_, _, v| v.to_string());
             fit_args("data", &["--reg", "0"])
         },
-        None,
+        Some(false),
     );
     case(
         "identical demonstrations (8 copies of one)",
@@ -246,7 +248,7 @@ fn degenerate_cases(root: &Path) -> Vec<Row> {
             });
             fit_args("data", &["--method", "tsc-hmm"])
         },
-        None,
+        Some(true),
     );
     case(
         "a demonstration shorter than the number of states",
@@ -339,7 +341,7 @@ fn degenerate_cases(root: &Path) -> Vec<Row> {
             });
             fit_args("data", &[])
         },
-        None,
+        Some(true),
     );
     case(
         "a demonstration with nothing observed",
@@ -349,7 +351,7 @@ fn degenerate_cases(root: &Path) -> Vec<Row> {
             std::fs::write(d.join("data").join("train_99.csv"), empty).unwrap();
             fit_args("data", &[])
         },
-        None,
+        Some(true),
     );
     case(
         "more mixture components than distinct frames",
@@ -361,7 +363,7 @@ fn degenerate_cases(root: &Path) -> Vec<Row> {
             write_set(&d.join("data"), &flat, |_, _, v| v.to_string());
             fit_args("data", &["--method", "gmm", "--states", "60", "--reg", "0"])
         },
-        None,
+        Some(false),
     );
     rows.push(empty_state_case());
     rows

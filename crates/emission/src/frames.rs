@@ -59,35 +59,10 @@ impl<'a> Frames<'a> {
         })
     }
 
-    /// Like [`Frames::new`], but a NaN is refused as well (for models or steps
-    /// that need every value observed).
-    pub fn complete(data: &'a [f64], dim: usize) -> Result<Self> {
-        let frames = Self::new(data, dim)?;
-        if let Some(i) = frames
-            .missing
-            .then(|| data.iter().position(|v| v.is_nan()))
-            .flatten()
-        {
-            return Err(EmissionError::InvalidValue {
-                frame: i / dim,
-                column: i % dim,
-                value: data[i],
-                reason: "value is missing (NaN) where every value must be observed",
-            });
-        }
-        Ok(frames)
-    }
-
     /// True when some value is NaN (not observed).
     #[inline]
     pub fn has_missing(&self) -> bool {
         self.missing
-    }
-
-    /// True when frame `t` has at least one missing value.
-    #[inline]
-    pub fn frame_has_missing(&self, t: usize) -> bool {
-        self.missing && self.frame(t).iter().any(|v| v.is_nan())
     }
 
     /// Number of missing values (NaN) in the block.
@@ -142,6 +117,18 @@ impl<'a> Frames<'a> {
             data,
             dim: self.dim,
             missing: self.missing && any_missing(data),
+        }
+    }
+}
+
+impl<'a> Frames<'a> {
+    /// Frames `range` known to hold no missing value (no scan).
+    #[inline]
+    pub(crate) fn slice_complete(&self, range: std::ops::Range<usize>) -> Frames<'a> {
+        Frames {
+            data: &self.data[range.start * self.dim..range.end * self.dim],
+            dim: self.dim,
+            missing: false,
         }
     }
 }

@@ -90,6 +90,12 @@ pub struct Gaussian {
     factor: Vec<f64>,
     /// `−½ (D log 2π + log|Σ_i|)` per state.
     log_norm: Vec<f64>,
+    /// The `r` an added-diagonal regularisation put on every covariance at the
+    /// last M-step (0 otherwise, and for a model built or loaded from parameters).
+    /// The expected statistics of missing values take it off their
+    /// conditional covariance, so that it is not compounded (see `Imputation`).
+    #[serde(skip)]
+    added_diagonal: f64,
 }
 
 impl TryFrom<GaussianParams> for Gaussian {
@@ -237,6 +243,7 @@ impl Gaussian {
             whiten_lanes: Vec::new(),
             factor: Vec::new(),
             log_norm: Vec::new(),
+            added_diagonal: 0.0,
         };
         g.refactor()?;
         Ok(g)
@@ -719,7 +726,7 @@ impl Gaussian {
         for_each_run(frames, |range, complete| {
             let rows = &mut out[range.start * s..range.end * s];
             if complete {
-                self.log_density_complete(frames.slice(range), rows);
+                self.log_density_complete(frames.slice_complete(range), rows);
                 return Ok(());
             }
             let x = frames.frame(range.start);
@@ -731,9 +738,9 @@ impl Gaussian {
             let m = marginals.get_or_try_insert(x, || self.marginal(&obs))?;
             xo.clear();
             xo.extend(obs.iter().map(|&k| x[k]));
-            for (i, o) in rows.iter_mut().enumerate() {
-                *o = m.log_density_raw(i, &xo);
-            }
+            // The observed values are complete: the marginal's own one-frame
+            // path, as the online filter evaluates them.
+            m.log_density_complete(Frames::new(&xo, obs.len())?, rows);
             Ok(())
         })
     }
@@ -836,7 +843,7 @@ impl Gaussian {
         for_each_run(frames, |range, complete| {
             let w = &weights[range.start * s..range.end * s];
             if complete {
-                self.accumulate_complete(frames.slice(range), w, stats);
+                self.accumulate_complete(frames.slice_complete(range), w, stats);
                 return Ok(());
             }
             let x = frames.frame(range.start);
@@ -1136,26 +1143,47 @@ impl Imputation {
         for j in 0..n_cov {
             match g.kind {
                 CovarianceType::Full | CovarianceType::Tied => {
-                    let cov = g.covariance(j);
-                    let sub = |rows: &[usize], cols: &[usize]| {
-                        DMatrix::from_fn(rows.len(), cols.len(), |r, c| cov[(rows[r], cols[c])])
+                    // Σ = S/n + rI after an added-diagonal M-step. The E-step
+                    // conditions on the maximum-likelihood part S/n: with r in
+                    // it, the regression onto the observed values would shrink
+                    // (covariances biased low) and the conditional variance
+                    // would carry r into the next M-step, where r is added
+                    // again (variances settling near s + r/(1 − f) for a
+                    // fraction f missing, instead of s + r as on complete
+                    // data). When S/n is singular on the observed dims (e.g. a
+                    // constant one), the regression keeps r and only the
+                    // conditional covariance drops it, which stays positive
+                    // semi-definite since the off-diagonal blocks hold no r.
+                    let sub = |m: &DMatrix<f64>, rows: &[usize], cols: &[usize]| {
+                        DMatrix::from_fn(rows.len(), cols.len(), |r, c| m[(rows[r], cols[c])])
                     };
-                    let s_mm = sub(&mis, &mis);
-                    if obs.is_empty() {
-                        regression.push(Vec::new());
-                        covariance.push(s_mm.transpose().as_slice().to_vec());
-                        continue;
-                    }
-                    let s_om = sub(&obs, &mis);
-                    let chol = nalgebra::Cholesky::new(sub(&obs, &obs)).ok_or_else(|| {
-                        EmissionError::NotPositiveDefinite {
-                            state: j,
-                            component: None,
-                            detail: format!(" (sub-block of the observed dims {obs:?})"),
+                    let full = g.covariance(j);
+                    let ml = (g.added_diagonal > 0.0)
+                        .then(|| &full - DMatrix::identity(d, d) * g.added_diagonal)
+                        .and_then(|ml| {
+                            let chol = nalgebra::Cholesky::new(sub(&ml, &obs, &obs))?;
+                            Some((ml, chol))
+                        });
+                    let (cov, chol, deflate) = match ml {
+                        Some((ml, chol)) => (ml, chol, 0.0),
+                        None => {
+                            let chol = nalgebra::Cholesky::new(sub(&full, &obs, &obs)).ok_or_else(
+                                || EmissionError::NotPositiveDefinite {
+                                    state: j,
+                                    component: None,
+                                    detail: format!(" (sub-block of the observed dims {obs:?})"),
+                                },
+                            )?;
+                            (full, chol, g.added_diagonal)
                         }
-                    })?;
+                    };
+                    let s_mm = sub(&cov, &mis, &mis);
+                    let s_om = sub(&cov, &obs, &mis);
                     let rt = chol.solve(&s_om); // |o| × |m|: Σ_oo⁻¹ Σ_om
-                    let cond = &s_mm - rt.transpose() * &s_om;
+                    let mut cond = &s_mm - rt.transpose() * &s_om;
+                    for a in 0..mis.len() {
+                        cond[(a, a)] = (cond[(a, a)] - deflate).max(0.0);
+                    }
                     // Row-major R = (Σ_oo⁻¹ Σ_om)ᵀ: the column-major storage of `rt`.
                     regression.push(rt.as_slice().to_vec());
                     covariance.push(
@@ -1167,13 +1195,21 @@ impl Imputation {
                             .collect(),
                     );
                 }
+                // As above: the variance without the added diagonal.
                 CovarianceType::Diagonal => {
                     regression.push(Vec::new());
-                    covariance.push(mis.iter().map(|&k| g.covariances[j * d + k]).collect());
+                    covariance.push(
+                        mis.iter()
+                            .map(|&k| (g.covariances[j * d + k] - g.added_diagonal).max(0.0))
+                            .collect(),
+                    );
                 }
                 CovarianceType::Spherical => {
                     regression.push(Vec::new());
-                    covariance.push(vec![g.covariances[j]; mis.len()]);
+                    covariance.push(vec![
+                        (g.covariances[j] - g.added_diagonal).max(0.0);
+                        mis.len()
+                    ]);
                 }
             }
         }
@@ -1531,6 +1567,7 @@ impl Emission for Gaussian {
             means,
             covariances: covs,
             placeholder: false,
+            added_diagonal: report.added_diagonal,
             ..self.clone()
         };
         updated.refactor()?;

@@ -48,8 +48,9 @@ fn nearest(x: &[f64], centroids: &[f64], d: usize) -> (usize, f64) {
 /// observed); `None` when nothing is missing.
 ///
 /// k-means only seeds EM, which then treats the missing values exactly, so
-/// the simplest imputation that keeps distances finite is enough here.
-fn mean_imputed(frames: Frames<'_>) -> Option<Vec<f64>> {
+/// the simplest imputation that keeps distances finite is enough here (and
+/// for G-means, which only counts clusters).
+pub fn mean_imputed(frames: Frames<'_>) -> Option<Vec<f64>> {
     if !frames.has_missing() {
         return None;
     }

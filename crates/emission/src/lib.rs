@@ -30,10 +30,10 @@
 //! bit for bit.
 //!
 //! With an added-diagonal regularisation `Σ = S/n + rI` (the seed paper's), the
-//! conditional covariance of a missing value carries `r` into the next M-step,
-//! so a fraction `f` of missing values settles the variances about
-//! `r f / (1 − f)` above the complete-data ones; EM with it is not monotone in
-//! any case. Prefer a small `r`, or an inverse-Wishart prior, when much is missing.
+//! expected statistics condition on the maximum-likelihood part `S/n`, so that
+//! `r` is not compounded from one M-step to the next (it would otherwise settle
+//! the variances near `s + r/(1 − f)` for a fraction `f` missing, instead of
+//! `s + r`); EM with an added diagonal is not monotone in any case.
 
 #![warn(missing_docs)]
 
@@ -151,18 +151,21 @@ pub trait Emission: Clone + Debug + Send + Sync {
 /// Maximum number of re-estimations by [`fit_weighted`] when values are missing.
 const MAX_REFINE: usize = 200;
 
-/// Fits the parameters of `template`'s structure (its parameter values are
-/// ignored) to frames with fixed weights:
-/// `θ = argmax_θ Σ_t Σ_i w_ti log b_i(x_t; θ)` (plus the regularisation), as
-/// the initialisations of HMMs and mixtures need (`w` from time bins or
-/// k-means clusters). `parts` are blocks of frames with their `T × S` weights.
+/// Fits the parameters of `template`'s structure to frames with fixed
+/// weights: `θ = argmax_θ Σ_t Σ_i w_ti log b_i(x_t; θ)` (plus the
+/// regularisation), as the initialisations of HMMs and mixtures need (`w` from
+/// time bins or k-means clusters). `parts` are blocks of frames with their
+/// `T × S` weights. A [placeholder template](Gaussian::standard)'s parameter
+/// values are ignored; a template with real parameters starts the iterations
+/// below when values are missing.
 ///
 /// With complete data this is one accumulation and one M-step. With missing
 /// values the expected statistics depend on the parameters, so the step is
-/// repeated from its own result (EM for the fixed assignment) until the
-/// weighted log-density `Σ w log b` gains less than `1e-14` relative, at
-/// most 200 times; the first step takes the missing values at each state's
-/// reference point, the following ones their conditional expectation.
+/// repeated from its own result (EM for the fixed assignment) while the
+/// objective `Σ w log b + log prior` gains more than `1e-14` relative, at most
+/// 200 times, and the best model is returned; the first step from a
+/// placeholder takes the missing values at each state's reference point, the
+/// following ones their conditional expectation.
 pub fn fit_weighted<E: Emission>(
     template: &E,
     parts: &[(Frames<'_>, &[f64])],
@@ -182,7 +185,7 @@ pub fn fit_weighted<E: Emission>(
         return Ok((model, report));
     }
     let objective = |model: &E| -> Result<f64> {
-        let mut total = 0.0;
+        let mut total = model.log_prior(reg);
         for (frames, w) in parts {
             let log_b = model.log_density(*frames)?;
             total += log_b
@@ -194,18 +197,23 @@ pub fn fit_weighted<E: Emission>(
         }
         Ok(total)
     };
-    let mut prev = objective(&model)?;
+    let mut best = objective(&model)?;
     for _ in 0..MAX_REFINE {
         let (next, r) = step(&model)?;
         let obj = objective(&next)?;
-        model = next;
-        report = r;
-        // EM increases the objective; a gain within rounding (or a fall, which
-        // only an added-diagonal regulariser can cause) ends the iterations.
-        if obj - prev <= 1e-14 * (1.0 + obj.abs()) {
+        // EM increases the objective; a gain within rounding ends the
+        // iterations, and a fall (which only an added-diagonal regulariser
+        // can cause) keeps the model before it.
+        if obj <= best {
             break;
         }
-        prev = obj;
+        let gain = obj - best;
+        model = next;
+        report = r;
+        best = obj;
+        if gain <= 1e-14 * (1.0 + obj.abs()) {
+            break;
+        }
     }
     Ok((model, report))
 }

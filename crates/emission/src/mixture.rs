@@ -215,14 +215,24 @@ impl<E: Emission> Emission for Mixture<E> {
                 "statistics shaped for another model".into(),
             ));
         }
+        // A frame with nothing observed adds nothing (its density is 1).
+        let unobserved: Vec<bool> = if frames.has_missing() {
+            frames
+                .iter()
+                .map(|x| x.iter().all(|v| v.is_nan()))
+                .collect()
+        } else {
+            Vec::new()
+        };
         with_scratch(t * m, |scratch| {
             for i in 0..s {
                 self.joint_terms(i, frames, scratch)?;
                 for (tt, row) in scratch.chunks_exact_mut(m).enumerate() {
-                    // A frame with nothing observed adds nothing (its density is 1).
-                    let unobserved =
-                        frames.has_missing() && frames.frame(tt).iter().all(|v| v.is_nan());
-                    let g = if unobserved { 0.0 } else { weights[tt * s + i] };
+                    let g = if unobserved.get(tt) == Some(&true) {
+                        0.0
+                    } else {
+                        weights[tt * s + i]
+                    };
                     let lse = log_sum_exp(row);
                     for (k, v) in row.iter_mut().enumerate() {
                         *v = if g == 0.0 || lse == f64::NEG_INFINITY {

@@ -212,7 +212,7 @@ impl Emission for Poisson {
         for (t, x) in frames.iter().enumerate() {
             // A frame with no count observed adds nothing (its probability is 1
             // whatever the rates).
-            if x.iter().all(|v| v.is_nan()) {
+            if frames.has_missing() && x.iter().all(|v| v.is_nan()) {
                 continue;
             }
             for i in 0..s {

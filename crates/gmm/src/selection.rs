@@ -7,6 +7,7 @@ use phasekit_emission::kmeans::lloyd;
 use phasekit_emission::{Emission, Frames, SequenceSet};
 use phasekit_hmm::{BaumWelch, Fitted};
 use serde::{Deserialize, Serialize};
+use std::ops::RangeInclusive;
 
 /// Scores of every candidate and the chosen one.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -96,21 +97,33 @@ pub struct GMeansStates<E: Emission> {
 /// of all sequences pooled (time order ignored), then an HMM with structure
 /// `template(K)` is fitted by `bw` (its initialisation, restarts and seed).
 ///
-/// The returned [`Selection`] has `best = K` and the BIC
-/// `−2 log p(X) + p log N` of the fitted HMM as its one score, so it reads like
-/// [`select_hmm_states_bic`]'s. Errors if the data are empty, if
-/// `template(K)` cannot be built, or if the fit fails (naming `K`).
+/// `K` is clamped to `range` (e.g. to at most the shortest sequence's length,
+/// which temporal k-bins needs). The returned [`Selection`] has `best = K` and
+/// the BIC `−2 log p(X) + p log N` of the fitted HMM as its one score, so it
+/// reads like [`select_hmm_states_bic`]'s. Errors if the data are empty or the
+/// range is empty, if `template(K)` cannot be built, or if the fit fails (naming `K`).
 pub fn select_hmm_states_gmeans<E: Emission>(
     bw: &BaumWelch,
     template: impl Fn(usize) -> phasekit_emission::Result<E>,
     data: &SequenceSet,
     settings: GMeans,
+    range: RangeInclusive<usize>,
 ) -> Result<GMeansStates<E>> {
     if data.is_empty() {
         return Err(GmmError::TooFewFrames("no sequences given".into()));
     }
+    if range.is_empty() || *range.start() == 0 {
+        return Err(GmmError::InvalidParameter {
+            name: "range",
+            reason: format!(
+                "no state count in {}..={} (need 1 ≤ min ≤ max)",
+                range.start(),
+                range.end()
+            ),
+        });
+    }
     let clusters = gmeans(data.all_frames(), settings)?;
-    let k = clusters.k;
+    let k = clusters.k.clamp(*range.start(), *range.end());
     let context = |e: String| GmmError::InvalidParameter {
         name: "states",
         reason: format!("G-means chose {k} states, but the HMM cannot be fitted: {e}"),
@@ -323,6 +336,26 @@ pub struct GMeansResult {
 /// Anderson–Darling test at level `alpha`. Deterministic (no random choice:
 /// children start at `c ± s √(2λ/π)` along the principal axis `s`, `λ` its variance).
 pub fn gmeans(frames: Frames<'_>, settings: GMeans) -> Result<GMeansResult> {
+    // With missing values (NaN), count clusters on the complete frames (values
+    // missing at random leave them a fair sample); filling values with their
+    // dimension's mean would line up fake frames along the axes, which the
+    // normality test splits off as extra clusters. Too few complete frames:
+    // the mean fill after all.
+    if frames.has_missing() {
+        let d = frames.dim();
+        let complete: Vec<f64> = frames
+            .iter()
+            .filter(|x| x.iter().all(|v| !v.is_nan()))
+            .flatten()
+            .copied()
+            .collect();
+        let data = if complete.len() / d >= (4 * d).max(settings.min_cluster() * 2) {
+            complete
+        } else {
+            phasekit_emission::kmeans::mean_imputed(frames).unwrap_or_default()
+        };
+        return gmeans(Frames::new(&data, d)?, settings);
+    }
     let (n, d) = (frames.len(), frames.dim());
     // `settings` were validated when built (or deserialised).
     if n == 0 {

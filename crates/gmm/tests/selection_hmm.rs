@@ -60,7 +60,8 @@ fn gmeans_picks_the_true_number_of_hmm_states() {
     for (s, seed) in [(3, 11), (4, 12), (5, 13)] {
         let truth = separated_hmm(s);
         let data = sample_set(&truth, 10, 120, seed);
-        let sel = select_hmm_states_gmeans(&bw, template, &data, GMeans::default()).unwrap();
+        let sel =
+            select_hmm_states_gmeans(&bw, template, &data, GMeans::default(), 1..=20).unwrap();
         assert_eq!(
             sel.selection.best, s,
             "true {s} states: {:?}",
@@ -111,6 +112,7 @@ fn gmeans_state_selection_reports_what_went_wrong() {
         |k| Gaussian::spherical(2, vec![0.0; 2 * k], vec![-1.0; k]),
         &data,
         GMeans::default(),
+        1..=20,
     )
     .unwrap_err();
     let msg = err.to_string();
@@ -125,6 +127,7 @@ fn gmeans_state_selection_reports_what_went_wrong() {
         |k| Gaussian::standard(CovarianceType::Diagonal, k, 3),
         &data,
         GMeans::default(),
+        1..=20,
     )
     .unwrap_err()
     .to_string();
@@ -136,10 +139,33 @@ fn gmeans_state_selection_reports_what_went_wrong() {
         template,
         &data,
         GMeans::builder().max_k(2).build().unwrap(),
+        1..=20,
     )
     .unwrap();
     assert_eq!(capped.selection.best, 2);
     assert_eq!(capped.fitted.model.n_states(), 2);
+    // So does the range, and an empty range is refused.
+    let clamped = select_hmm_states_gmeans(&bw, template, &data, GMeans::default(), 1..=2).unwrap();
+    assert_eq!((clamped.clusters.k, clamped.selection.best), (3, 2));
+    assert_eq!(clamped.fitted.model.n_states(), 2);
+    assert!(select_hmm_states_gmeans(&bw, template, &data, GMeans::default(), 3..=2).is_err());
+    // Missing values: G-means counts the same clusters (on the complete frames).
+    let mut holes: Vec<Vec<f64>> = data.iter().map(|s| s.as_slice().to_vec()).collect();
+    for (k, v) in holes.iter_mut().flatten().enumerate() {
+        if k % 11 == 3 {
+            *v = f64::NAN;
+        }
+    }
+    let holes = phasekit_emission::SequenceSet::new(&holes, 2).unwrap();
+    let sel = select_hmm_states_gmeans(&bw, template, &holes, GMeans::default(), 1..=20).unwrap();
+    assert_eq!(sel.selection.best, 3);
+    assert!(sel
+        .fitted
+        .model
+        .emission()
+        .means()
+        .iter()
+        .all(|v| v.is_finite()));
 }
 
 #[test]

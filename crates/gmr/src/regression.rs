@@ -90,7 +90,8 @@ impl Regression {
             input: observed.iter().map(|&k| self.input[k]).collect(),
             output: self.output.clone(),
             conditionals,
-            joint: self.joint.clone(),
+            // Only ever evaluated on complete (observed) inputs: no joint needed.
+            joint: Vec::new(),
         })
     }
 
@@ -136,15 +137,7 @@ impl Regression {
         cov: Option<&mut [f64]>,
         scratch: &mut [f64],
     ) -> Result<()> {
-        self.check_buffers(x_in, h, mean, cov.as_deref(), scratch)?;
-        if x_in.iter().any(|v| v.is_nan()) {
-            let r = self.for_observed(x_in)?;
-            let observed: Vec<f64> = x_in.iter().copied().filter(|v| !v.is_nan()).collect();
-            r.mix_unchecked(&observed, h, mean, cov, scratch);
-        } else {
-            self.mix_unchecked(x_in, h, mean, cov, scratch);
-        }
-        Ok(())
+        PatternRegressions::default().mix(self, x_in, h, mean, cov, scratch)
     }
 
     fn check_buffers(

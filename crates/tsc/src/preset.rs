@@ -500,7 +500,12 @@ pub fn cross_validate(
                     }
                 }
             }
-            se / frames.max(1) as f64
+            // A candidate with no scorable held-out frame has no error to compare.
+            if frames == 0 {
+                f64::INFINITY
+            } else {
+                se / frames as f64
+            }
         })
         .collect())
 }

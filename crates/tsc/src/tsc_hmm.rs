@@ -15,7 +15,7 @@ use crate::detect::{dilate, runs, select, worst_fraction, Disagreement, FilterLa
 use crate::error::{Result, TscError};
 use crate::select::{check_range, Selector};
 use phasekit_emission::{CovarianceType, Emission, Frames, Gaussian, Regularization, SequenceSet};
-use phasekit_gmm::{gmeans, select_hmm_states_bic, GMeans, Selection};
+use phasekit_gmm::{select_hmm_states_bic, select_hmm_states_gmeans, GMeans, Selection};
 use phasekit_gmr::HmmRegression;
 use phasekit_hmm::{BaumWelch, Convergence, FitReport, Hmm, Init, Update};
 use serde::{Deserialize, Serialize};
@@ -177,20 +177,16 @@ impl HmmSettings {
                         (sel.best, Some(sel))
                     }
                     // G-means on the pooled frames (deterministic: its splits start
-                    // along the principal axis), clamped to the range; the BIC of the
-                    // fitted HMM is its score (as `select_hmm_states_gmeans` reports).
+                    // along the principal axis), clamped to the range.
                     Selector::GMeans => {
-                        let k = gmeans(data.all_frames(), GMeans::default())?
-                            .k
-                            .clamp(lo, hi);
-                        let fitted = bw.fit(&template(k)?, data)?;
-                        let bic = fitted.model.bic(data)?;
-                        let sel = Selection {
-                            best: k,
-                            scores: vec![(k, bic)],
-                            failures: Vec::new(),
-                        };
-                        return Ok((fitted.model, fitted.report, Some(sel)));
+                        let g = select_hmm_states_gmeans(
+                            &bw,
+                            template,
+                            data,
+                            GMeans::default(),
+                            lo..=hi,
+                        )?;
+                        return Ok((g.fitted.model, g.fitted.report, Some(g.selection)));
                     }
                 }
             }

@@ -43,14 +43,29 @@ pub struct FitReport {
 /// regularisation larger than every feature's variance (which leaves the
 /// states indistinguishable: the data are on a much smaller scale than `reg`).
 pub fn data_warnings(seqs: &[Vec<f64>], names: &[String], reg: f64) -> Vec<String> {
-    let s = Standardisation::fit(seqs, names.len());
+    let d = names.len();
+    // Variance over the observed values of every feature (None: never observed).
+    let frames = || seqs.iter().flat_map(|q| q.chunks_exact(d));
+    let (mut n, mut sum) = (vec![0usize; d], vec![0.0; d]);
+    for f in frames() {
+        for k in 0..d {
+            if !f[k].is_nan() {
+                n[k] += 1;
+                sum[k] += f[k];
+            }
+        }
+    }
+    let mut q = vec![0.0; d];
+    for f in frames() {
+        for k in 0..d {
+            if !f[k].is_nan() {
+                q[k] += (f[k] - sum[k] / n[k] as f64).powi(2);
+            }
+        }
+    }
     let mut out = Vec::new();
-    let never: Vec<&str> = (0..names.len())
-        .filter(|&k| {
-            seqs.iter()
-                .flat_map(|q| q.chunks_exact(names.len()))
-                .all(|f| f[k].is_nan())
-        })
+    let never: Vec<&str> = (0..d)
+        .filter(|&k| n[k] == 0)
         .map(|k| names[k].as_str())
         .collect();
     if !never.is_empty() {
@@ -59,7 +74,11 @@ pub fn data_warnings(seqs: &[Vec<f64>], names: &[String], reg: f64) -> Vec<Strin
             never.join(", ")
         ));
     }
-    let largest = s.std.iter().map(|v| v * v).fold(0.0, f64::max);
+    // Constant and never-observed features do not count: the warning is about scale.
+    let largest = (0..d)
+        .filter(|&k| n[k] > 0)
+        .map(|k| q[k] / n[k] as f64)
+        .fold(0.0, f64::max);
     if reg > 0.0 && largest > 0.0 && reg > largest {
         out.push(format!(
             "the regularisation {reg:e} exceeds the variance of every feature (largest {largest:.3e}): \
@@ -225,7 +244,10 @@ fn summary_line(r: &FitReport) -> String {
 fn notes(r: &FitReport) -> String {
     let mut notes = Vec::new();
     if r.fit.missing_values > 0 {
-        notes.push(format!("{} missing values left out", r.fit.missing_values));
+        notes.push(format!(
+            "{} feature values missing (the fit used their expected values given the observed ones)",
+            r.fit.missing_values
+        ));
     }
     if !r.fit.jittered_states.is_empty() {
         notes.push(format!(
