@@ -257,3 +257,39 @@ fn infinity_is_still_refused() {
         );
     assert!(!dir.path().join("m.json").exists());
 }
+
+#[test]
+fn removing_nothing_is_bit_identical_to_the_plain_path() {
+    let (_dir, data) = dataset(0.0);
+    let per_seed = |extra: &[&str]| -> Vec<serde_json::Value> {
+        let out = phasekit()
+            .args([
+                "evaluate",
+                "--methods",
+                "hmm,tsc-hmm:window=2",
+                "--seeds",
+                "3",
+                "--format",
+                "json",
+            ])
+            .args(extra)
+            .arg("--data")
+            .arg(&data)
+            .assert()
+            .success()
+            .get_output()
+            .stdout
+            .clone();
+        let report: serde_json::Value = serde_json::from_slice(&out).unwrap();
+        report["results"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|r| r["per_seed_mse"].clone())
+            .collect()
+    };
+    let plain = per_seed(&[]);
+    assert_eq!(plain, per_seed(&["--missing", "0"]));
+    // And removing something changes the numbers (the option is not a no-op).
+    assert_ne!(plain, per_seed(&["--missing", "0.2"]));
+}
