@@ -17,7 +17,7 @@
 
 use crate::error::{HmmError, Result};
 use crate::model::Hmm;
-use phasekit_emission::linalg::{exp_or_zero, log_sum_exp};
+use phasekit_emission::linalg::{exp_in_place, log_sum_exp};
 use phasekit_emission::{Emission, Frames};
 
 /// Result of the forward pass on one sequence.
@@ -121,6 +121,8 @@ pub(crate) struct ForwardCore {
     pred_next: Vec<f64>,
     log_h: Vec<f64>,
     terms: Vec<f64>,
+    /// `e^{log b_j − m}` of the current shift `m`.
+    e: Vec<f64>,
 }
 
 impl ForwardCore {
@@ -137,6 +139,7 @@ impl ForwardCore {
             pred_next: vec![0.0; s],
             log_h: vec![f64::NEG_INFINITY; s],
             terms: vec![f64::NEG_INFINITY; s],
+            e: vec![0.0; s],
         };
         core.reset(hmm);
         core
@@ -153,12 +156,19 @@ impl ForwardCore {
     }
 
     /// `out_j = pred_j e^{log b_j − m}` over the possible states; returns their sum.
+    ///
+    /// The `S` exponentials are taken in one vectorised pass over every state
+    /// (branch-free; the impossible ones are masked afterwards).
     #[inline(always)]
-    fn scaled(&self, log_b: &[f64], m: f64, out: &mut [f64]) -> f64 {
+    fn scaled(&mut self, log_b: &[f64], m: f64, out: &mut [f64]) -> f64 {
+        for (e, l) in self.e.iter_mut().zip(log_b) {
+            *e = l - m;
+        }
+        exp_in_place(&mut self.e);
         let mut c = 0.0;
         for (j, o) in out.iter_mut().enumerate() {
             *o = if self.alive[j] {
-                self.pred[j] * (log_b[j] - m).exp()
+                self.pred[j] * self.e[j]
             } else {
                 0.0
             };
@@ -211,8 +221,9 @@ impl ForwardCore {
             let lc = log_sum_exp(&self.log_h);
             for (lh, o) in self.log_h.iter_mut().zip(h.iter_mut()) {
                 *lh -= lc;
-                *o = lh.exp();
+                *o = *lh;
             }
+            exp_in_place(h);
             lc
         } else {
             // Shift by the largest density among the possible states; their
@@ -545,10 +556,9 @@ impl<E: Emission> Hmm<E> {
                     };
                     m = m.max(w[j]);
                 }
-                for j in 0..s {
-                    w[j] -= m;
-                    u[j] = exp_or_zero(w[j]);
-                }
+                w.iter_mut().for_each(|v| *v -= m);
+                u.copy_from_slice(&w);
+                exp_in_place(&mut u);
             } else {
                 let mut m = f64::NEG_INFINITY;
                 for j in 0..s {
@@ -556,14 +566,16 @@ impl<E: Emission> Hmm<E> {
                         m = m.max(lb[j]);
                     }
                 }
+                // One vectorised pass of S exponentials (all states,
+                // branch-free), then the non-carrying ones are masked.
                 let fill = |m: f64, u: &mut [f64]| -> f64 {
+                    for (uj, l) in u.iter_mut().zip(lb) {
+                        *uj = l - m;
+                    }
+                    exp_in_place(u);
                     let mut total = 0.0;
                     for j in 0..s {
-                        u[j] = if carry[j] {
-                            (lb[j] - m).exp() * beta[j]
-                        } else {
-                            0.0
-                        };
+                        u[j] = if carry[j] { u[j] * beta[j] } else { 0.0 };
                         total += u[j];
                     }
                     total
@@ -678,9 +690,11 @@ impl<E: Emission> Hmm<E> {
                 row[i] = la[t * s + i] + lb[t * s + i];
             }
             let z = log_sum_exp(row);
-            for i in 0..s {
-                gamma[t * s + i] = (row[i] - z).exp();
+            let g = &mut gamma[t * s..(t + 1) * s];
+            for (gi, v) in g.iter_mut().zip(row.iter()) {
+                *gi = v - z;
             }
+            exp_in_place(g);
         }
         let mut xi = vec![0.0; s * s];
         for t in 0..t_len - 1 {
@@ -693,8 +707,10 @@ impl<E: Emission> Hmm<E> {
                 }
             }
             let z = log_sum_exp(&terms);
+            terms.iter_mut().for_each(|v| *v -= z);
+            exp_in_place(&mut terms);
             for (x, v) in xi.iter_mut().zip(&terms) {
-                *x += exp_or_zero(v - z);
+                *x += v;
             }
         }
         xi
