@@ -1,6 +1,8 @@
 //! End-to-end tests of the `phasekit` command on generated interactions.
 
-use assert_cmd::Command;
+mod common;
+
+use common::{interaction_folder, parse_csv, phasekit, plain};
 use phasekit_cli::data::{read_table, FeatureSpec, Velocity};
 use phasekit_cli::model_file::ModelFile;
 use phasekit_cli::pipeline::{predict_table, predictor};
@@ -12,10 +14,6 @@ use tempfile::TempDir;
 /// The TSC-HMM used in the tests: generated interactions need a dilation to
 /// give the transition HMM runs to train on.
 const TSC: &str = "tsc-hmm:window=2";
-
-fn phasekit() -> Command {
-    Command::cargo_bin("phasekit").expect("the phasekit binary is built")
-}
 
 fn write_csv(path: &Path, header: &str, rows: &[Vec<String>]) {
     let mut s = format!("{header}\n");
@@ -35,19 +33,7 @@ fn rows_of(frames: &[f64]) -> Vec<Vec<String>> {
 
 /// A folder `data/` with 8 training and 3 test demonstrations.
 fn dataset() -> (TempDir, PathBuf) {
-    let dir = tempfile::tempdir().unwrap();
-    let data = dir.path().join("data");
-    std::fs::create_dir(&data).unwrap();
-    let header = synthetic::COLUMNS.join(",");
-    for (i, demo) in synthetic::generate(11, 7).iter().enumerate() {
-        let name = if i < 8 {
-            format!("train_{i:02}.csv")
-        } else {
-            format!("test_{:02}.csv", i - 8)
-        };
-        write_csv(&data.join(name), &header, &rows_of(&demo.frames));
-    }
-    (dir, data)
+    interaction_folder(11, 7, 8, plain)
 }
 
 fn fit(data: &Path, method: &str, out: &Path) {
@@ -58,20 +44,6 @@ fn fit(data: &Path, method: &str, out: &Path) {
         .arg(out)
         .assert()
         .success();
-}
-
-fn parse_csv(text: &str) -> (Vec<String>, Vec<Vec<f64>>) {
-    let mut lines = text.lines();
-    let header = lines
-        .next()
-        .unwrap()
-        .split(',')
-        .map(str::to_string)
-        .collect();
-    let rows = lines
-        .map(|l| l.split(',').map(|c| c.parse().unwrap()).collect())
-        .collect();
-    (header, rows)
 }
 
 /// No file but the given ones (and no temporary file) in `dir`.

@@ -1,34 +1,12 @@
 //! `--json` is `--format json` on every command that prints for machines.
 
-use assert_cmd::Command;
-use phasekit_tsc::synthetic;
+mod common;
 
-fn phasekit() -> Command {
-    Command::cargo_bin("phasekit").expect("the phasekit binary is built")
-}
+use common::{interaction_folder, phasekit, plain};
 
 #[test]
 fn json_flag_equals_format_json() {
-    let dir = tempfile::tempdir().unwrap();
-    let data = dir.path().join("data");
-    std::fs::create_dir(&data).unwrap();
-    for (i, d) in synthetic::generate(6, 2).iter().enumerate() {
-        let name = if i < 4 {
-            format!("train_{i:02}.csv")
-        } else {
-            format!("test_{:02}.csv", i - 4)
-        };
-        let mut s = synthetic::COLUMNS.join(",") + "\n";
-        for f in d.frames.chunks_exact(6) {
-            s += &(f
-                .iter()
-                .map(|v| v.to_string())
-                .collect::<Vec<_>>()
-                .join(",")
-                + "\n");
-        }
-        std::fs::write(data.join(name), s).unwrap();
-    }
+    let (dir, data) = interaction_folder(6, 2, 4, plain);
     let model = dir.path().join("m.json");
     let keys = |out: Vec<u8>| -> Vec<String> {
         let v: serde_json::Value = serde_json::from_slice(&out).expect("JSON on stdout");

@@ -2,64 +2,35 @@
 //! observed"; `stream` takes empty or malformed lines as frames with nothing
 //! observed and keeps going.
 
-use assert_cmd::Command;
-use phasekit_tsc::synthetic;
+mod common;
+
+use common::{interaction_folder, parse_csv, phasekit};
 use predicates::prelude::*;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use std::path::{Path, PathBuf};
 use tempfile::TempDir;
 
-fn phasekit() -> Command {
-    Command::cargo_bin("phasekit").expect("the phasekit binary is built")
-}
-
-/// Writes demonstrations with about `frac` of their cells emptied (and, on
-/// every fifth row, one cell written as `NaN` and one as `NA`).
-fn write_demo(path: &Path, frames: &[f64], frac: f64, rng: &mut ChaCha8Rng) {
-    let mut s = synthetic::COLUMNS.join(",") + "\n";
-    for (t, f) in frames.chunks_exact(6).enumerate() {
-        let cells: Vec<String> = f
-            .iter()
-            .enumerate()
-            .map(|(k, v)| {
-                if frac > 0.0 && t % 5 == 4 && k == 1 {
-                    "NaN".into()
-                } else if frac > 0.0 && t % 5 == 4 && k == 4 {
-                    "NA".into()
-                } else if rng.random::<f64>() < frac {
-                    String::new()
-                } else {
-                    v.to_string()
-                }
-            })
-            .collect();
-        s += &(cells.join(",") + "\n");
-    }
-    std::fs::write(path, s).unwrap();
-}
-
+/// A folder `data/` with 8 training and 3 test demonstrations, about `frac`
+/// of their cells emptied (and, on every fifth row, one cell written as `NaN`
+/// and one as `NA`).
 fn dataset(frac: f64) -> (TempDir, PathBuf) {
-    let dir = tempfile::tempdir().unwrap();
-    let data = dir.path().join("data");
-    std::fs::create_dir(&data).unwrap();
     let mut rng = ChaCha8Rng::seed_from_u64(5);
-    for (i, demo) in synthetic::generate(11, 7).iter().enumerate() {
-        let name = if i < 8 {
-            format!("train_{i:02}.csv")
+    interaction_folder(11, 7, 8, move |t, k, v| {
+        if frac > 0.0 && t % 5 == 4 && k == 1 {
+            "NaN".into()
+        } else if frac > 0.0 && t % 5 == 4 && k == 4 {
+            "NA".into()
+        } else if rng.random::<f64>() < frac {
+            String::new()
         } else {
-            format!("test_{:02}.csv", i - 8)
-        };
-        write_demo(&data.join(name), &demo.frames, frac, &mut rng);
-    }
-    (dir, data)
+            v.to_string()
+        }
+    })
 }
 
 fn rows(text: &str) -> Vec<Vec<f64>> {
-    text.lines()
-        .skip(1)
-        .map(|l| l.split(',').map(|c| c.parse().unwrap()).collect())
-        .collect()
+    parse_csv(text).1
 }
 
 #[test]

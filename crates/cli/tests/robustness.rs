@@ -6,28 +6,21 @@
 //! README's copy differs; `PHASEKIT_UPDATE_README=1 cargo test -p phasekit-cli
 //! --test robustness` rewrites it.
 
-use assert_cmd::Command;
+mod common;
+
+use common::{phasekit, write_frames};
 use phasekit_emission::{CovarianceType, Gaussian, Regularization, SequenceSet};
 use phasekit_hmm::{BaumWelch, Hmm};
 use phasekit_tsc::synthetic;
 use std::path::{Path, PathBuf};
 
-fn phasekit() -> Command {
-    Command::cargo_bin("phasekit").expect("the phasekit binary is built")
-}
-
 const HEADER: &str = "p1_wrist_x,p1_wrist_y,p1_wrist_z,p2_wrist_x,p2_wrist_y,p2_wrist_z";
 
-/// Writes demonstrations (`T × 6` each, rows transformed by `cell`) as `train_NN.csv`.
-fn write_set(dir: &Path, demos: &[Vec<f64>], cell: impl Fn(usize, usize, f64) -> String) {
+/// Writes demonstrations (`T × 6` each, cells written by `cell`) as `train_NN.csv`.
+fn write_set(dir: &Path, demos: &[Vec<f64>], mut cell: impl FnMut(usize, usize, f64) -> String) {
     std::fs::create_dir_all(dir).unwrap();
     for (i, d) in demos.iter().enumerate() {
-        let mut s = format!("{HEADER}\n");
-        for (t, f) in d.chunks_exact(6).enumerate() {
-            let row: Vec<String> = f.iter().enumerate().map(|(k, v)| cell(t, k, *v)).collect();
-            s += &(row.join(",") + "\n");
-        }
-        std::fs::write(dir.join(format!("train_{i:02}.csv")), s).unwrap();
+        write_frames(&dir.join(format!("train_{i:02}.csv")), d, &mut cell);
     }
 }
 

@@ -1,0 +1,73 @@
+//! Helpers shared by the command-line tests: the binary, and generated
+//! demonstrations written as CSV files.
+
+// Every test file uses a part of this module.
+#![allow(dead_code)]
+
+use assert_cmd::Command;
+use phasekit_tsc::synthetic;
+use std::path::{Path, PathBuf};
+use tempfile::TempDir;
+
+/// The `phasekit` binary of this build.
+pub fn phasekit() -> Command {
+    Command::cargo_bin("phasekit").expect("the phasekit binary is built")
+}
+
+/// Writes `frames` (`T × 6`, the columns of [`synthetic::COLUMNS`]) as a CSV
+/// file with a header, cell `(t, k)` written as `cell(t, k, value)`.
+pub fn write_frames(
+    path: &Path,
+    frames: &[f64],
+    cell: &mut impl FnMut(usize, usize, f64) -> String,
+) {
+    let mut s = synthetic::COLUMNS.join(",") + "\n";
+    for (t, f) in frames.chunks_exact(6).enumerate() {
+        let row: Vec<String> = f.iter().enumerate().map(|(k, v)| cell(t, k, *v)).collect();
+        s += &(row.join(",") + "\n");
+    }
+    std::fs::write(path, s).unwrap();
+}
+
+/// Every value as Rust prints it (round-trips exactly).
+pub fn plain(_: usize, _: usize, v: f64) -> String {
+    v.to_string()
+}
+
+/// A folder `data/` in a new temporary directory holding the interactions of
+/// `synthetic::generate(n, seed)`: the first `n_train` as `train_NN.csv`, the
+/// rest as `test_NN.csv`, cells written by `cell` (see [`write_frames`]).
+pub fn interaction_folder(
+    n: usize,
+    seed: u64,
+    n_train: usize,
+    mut cell: impl FnMut(usize, usize, f64) -> String,
+) -> (TempDir, PathBuf) {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    std::fs::create_dir(&data).unwrap();
+    for (i, demo) in synthetic::generate(n, seed).iter().enumerate() {
+        let name = if i < n_train {
+            format!("train_{i:02}.csv")
+        } else {
+            format!("test_{:02}.csv", i - n_train)
+        };
+        write_frames(&data.join(name), &demo.frames, &mut cell);
+    }
+    (dir, data)
+}
+
+/// The header and the numeric rows of a CSV text.
+pub fn parse_csv(text: &str) -> (Vec<String>, Vec<Vec<f64>>) {
+    let mut lines = text.lines();
+    let header = lines
+        .next()
+        .unwrap()
+        .split(',')
+        .map(str::to_string)
+        .collect();
+    let rows = lines
+        .map(|l| l.split(',').map(|c| c.parse().unwrap()).collect())
+        .collect();
+    (header, rows)
+}
