@@ -9,7 +9,7 @@ mod common;
 
 use common::*;
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
-use phasekit::emission::{Frames, Regularization};
+use phasekit::emission::{Frames, Regularisation};
 use std::hint::black_box;
 
 fn em(c: &mut Criterion) {
@@ -21,7 +21,7 @@ fn em(c: &mut Criterion) {
     group.sample_size(10);
     for w in gmm_workloads() {
         let frames = Frames::new(&w.data, w.dim).unwrap();
-        let reg = Regularization::add_diagonal(w.reg_covar).unwrap();
+        let reg = Regularisation::add_diagonal(w.reg_covar).unwrap();
         group.throughput(Throughput::Elements(frames.len() as u64));
         group.bench_function(&w.name, |b| {
             b.iter(|| {

@@ -24,7 +24,7 @@ mod common;
 
 use common::*;
 use nalgebra::DMatrix;
-use phasekit::emission::{Frames, Gaussian, Regularization, SequenceSet};
+use phasekit::emission::{Frames, Gaussian, Regularisation, SequenceSet};
 use phasekit::gmm::Em;
 use phasekit::hmm::{BaumWelch, Hmm, Update};
 use serde_json::{json, Value};
@@ -121,11 +121,11 @@ fn hmm_params_json(h: &Hmm<Gaussian>) -> Value {
     })
 }
 
-fn fit_hmm(w: &HmmWorkload, threads: usize) -> phasekit::hmm::Fitted<Gaussian> {
+fn fit_hmm(w: &HmmWorkload, threads: usize) -> phasekit::hmm::HmmFit<Gaussian> {
     BaumWelch::builder()
         .max_iter(w.n_iter)
         .tol(f64::NEG_INFINITY)
-        .regularization(w.reg())
+        .regularisation(w.reg())
         .threads(threads)
         .build()
         .expect("settings")
@@ -221,7 +221,7 @@ fn run_gmm(w: &GmmWorkload, dir: &Path, budget: f64) -> (Value, Value) {
     let em = Em::builder()
         .max_iter(w.n_iter)
         .tol(f64::NEG_INFINITY)
-        .regularization(Regularization::add_diagonal(w.reg_covar).unwrap())
+        .regularisation(Regularisation::add_diagonal(w.reg_covar).unwrap())
         .threads(1)
         .build()
         .unwrap();
@@ -268,7 +268,7 @@ fn status_kb(field: &str) -> u64 {
 fn one_iteration(
     hmm: &Hmm<Gaussian>,
     data: &SequenceSet,
-    reg: &Regularization,
+    reg: &Regularisation,
 ) -> (f64, Hmm<Gaussian>) {
     let stats = hmm.expected_statistics(data).expect("E-step");
     let (next, _) = hmm

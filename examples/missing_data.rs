@@ -28,9 +28,9 @@
 //! the complete data of the same seed, and the MSE of the robot's predicted
 //! hand position on the test demonstrations (cm², truth complete).
 
-use phasekit::emission::{CovarianceType, Frames, Gaussian, Regularization, SequenceSet};
+use phasekit::emission::{CovarianceType, Frames, Gaussian, Regularisation, SequenceSet, Shape};
 use phasekit::gmr::HmmRegression;
-use phasekit::hmm::{BaumWelch, Convergence, Hmm, Init};
+use phasekit::hmm::{BaumWelch, Convergence, Hmm, HmmInit};
 use phasekit::tsc::synthetic;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -107,15 +107,22 @@ fn features(frames: &[f64]) -> Vec<f64> {
 
 fn fit(train: &[Vec<f64>]) -> Hmm<Gaussian> {
     BaumWelch::builder()
-        .init(Init::KBins { smoothing: 0.01 })
-        .regularization(Regularization::add_diagonal(1e-4).expect("valid"))
+        .init(HmmInit::KBins { smoothing: 0.01 })
+        .regularisation(Regularisation::add_diagonal(1e-4).expect("valid"))
         .convergence(Convergence::MeanPerSequence)
         .tol(1e-4)
         .max_iter(100)
         .build()
         .expect("valid settings")
         .fit(
-            &Gaussian::standard(CovarianceType::Full, STATES, 12).expect("valid"),
+            &Gaussian::standard(
+                CovarianceType::Full,
+                Shape {
+                    n_states: STATES,
+                    dim: 12,
+                },
+            )
+            .expect("valid"),
             &SequenceSet::new(train, 12).expect("valid data"),
         )
         .expect("the fit converges")

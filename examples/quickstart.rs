@@ -4,9 +4,9 @@
 //!
 //!     cargo run --release --example quickstart
 
-use phasekit::emission::{CovarianceType, Gaussian, Regularization, SequenceSet};
+use phasekit::emission::{CovarianceType, Gaussian, Regularisation, SequenceSet, Shape};
 use phasekit::gmr::HmmRegression;
-use phasekit::hmm::{BaumWelch, Convergence, Init};
+use phasekit::hmm::{BaumWelch, Convergence, HmmInit};
 use phasekit::tsc::synthetic;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
@@ -20,10 +20,19 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .max_iter(40)
         .tol(1e-4)
         .convergence(Convergence::MeanPerSequence)
-        .regularization(Regularization::add_diagonal(1e-2)?)
-        .init(Init::KBins { smoothing: 0.01 })
+        .regularisation(Regularisation::add_diagonal(1e-2)?)
+        .init(HmmInit::KBins { smoothing: 0.01 })
         .build()?;
-    let fitted = bw.fit(&Gaussian::standard(CovarianceType::Full, 4, 12)?, &data)?;
+    let fitted = bw.fit(
+        &Gaussian::standard(
+            CovarianceType::Full,
+            Shape {
+                n_states: 4,
+                dim: 12,
+            },
+        )?,
+        &data,
+    )?;
     println!(
         "fitted 4 states in {} EM iterations, log-likelihood {:.1}",
         fitted.report.iterations,

@@ -5,11 +5,11 @@
 
 use nalgebra::{DMatrix, DVector};
 use phasekit::emission::{
-    Categorical, CovarianceType, Emission, EmissionError, Frames, Gaussian, Mixture, Poisson,
-    Regularization, SequenceSet,
+    Categorical, CovarianceType, Emission, EmissionError, Frames, Gaussian, MixtureEmission,
+    Poisson, Regularisation, SequenceSet, Shape,
 };
 use phasekit::hmm::{
-    initialise, kbins_edges, BaumWelch, Hmm, HmmError, Init, Update, MODEL_FORMAT_VERSION,
+    initialise, kbins_edges, BaumWelch, Hmm, HmmError, HmmInit, Update, MODEL_FORMAT_VERSION,
 };
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -172,9 +172,16 @@ fn sample_set<E: Emission>(
 fn recovers_a_three_state_gaussian_hmm() {
     let truth = three_state_truth();
     let (data, _) = sample_set(&truth, 20, 200, 42);
-    let template = Gaussian::standard(CovarianceType::Full, 3, 2).unwrap();
+    let template = Gaussian::standard(
+        CovarianceType::Full,
+        Shape {
+            n_states: 3,
+            dim: 2,
+        },
+    )
+    .unwrap();
     let bw = BaumWelch::builder()
-        .init(Init::KMeans)
+        .init(HmmInit::KMeans)
         .restarts(3)
         .seed(5)
         .max_iter(200)
@@ -593,10 +600,17 @@ fn left_right_truth() -> Hmm<Gaussian> {
 #[test]
 fn left_right_zeros_stay_exactly_zero() {
     let (data, _) = sample_set(&left_right_truth(), 10, 60, 9);
-    let template = Gaussian::standard(CovarianceType::Full, 3, 2).unwrap();
-    let init = Init::KBins { smoothing: 0.0 };
+    let template = Gaussian::standard(
+        CovarianceType::Full,
+        Shape {
+            n_states: 3,
+            dim: 2,
+        },
+    )
+    .unwrap();
+    let init = HmmInit::KBins { smoothing: 0.0 };
     let mut rng = ChaCha8Rng::seed_from_u64(0);
-    let initial = initialise(&template, &data, init, &Regularization::none(), &mut rng).unwrap();
+    let initial = initialise(&template, &data, init, &Regularisation::none(), &mut rng).unwrap();
     let zeros_a = [(0, 2), (1, 0), (2, 0), (2, 1)];
     for (i, j) in zeros_a {
         assert_eq!(initial.transition()[i * 3 + j], 0.0, "initial a[{i}][{j}]");
@@ -716,13 +730,20 @@ fn kbins_initialisation_uses_the_documented_bins_and_transitions() {
         .collect();
     let data = SequenceSet::new(&seqs, 1).unwrap();
     let s = 4;
-    let template = Gaussian::standard(CovarianceType::Diagonal, s, 1).unwrap();
+    let template = Gaussian::standard(
+        CovarianceType::Diagonal,
+        Shape {
+            n_states: s,
+            dim: 1,
+        },
+    )
+    .unwrap();
     let mut rng = ChaCha8Rng::seed_from_u64(0);
     let hmm = initialise(
         &template,
         &data,
-        Init::KBins { smoothing: 0.01 },
-        &Regularization::none(),
+        HmmInit::KBins { smoothing: 0.01 },
+        &Regularisation::none(),
         &mut rng,
     )
     .unwrap();
@@ -801,7 +822,17 @@ fn json_round_trip_preserves_every_model() {
             .max_iter(3)
             .build()
             .unwrap()
-            .fit(&Gaussian::standard(kind, 3, 2).unwrap(), &data)
+            .fit(
+                &Gaussian::standard(
+                    kind,
+                    Shape {
+                        n_states: 3,
+                        dim: 2,
+                    },
+                )
+                .unwrap(),
+                &data,
+            )
             .unwrap()
             .model
     };
@@ -854,7 +885,7 @@ fn json_round_trip_preserves_every_model() {
         )
         .unwrap()
     };
-    let mix = Mixture::new(vec![0.3, 0.7, 0.5, 0.5], vec![comps(0.0), comps(4.0)]).unwrap();
+    let mix = MixtureEmission::new(vec![0.3, 0.7, 0.5, 0.5], vec![comps(0.0), comps(4.0)]).unwrap();
     let gmm = Hmm::new(vec![0.5, 0.5], vec![0.9, 0.1, 0.2, 0.8], mix).unwrap();
     let (gmm_data, _) = sample_set(&gmm, 3, 40, 4);
     let gmm = BaumWelch::builder()
@@ -1079,7 +1110,7 @@ fn errors_name_the_sequence_frame_and_column() {
     assert!(BaumWelch::builder().threads(0).build().is_err());
     assert!(BaumWelch::builder().tol(f64::NAN).build().is_err());
     assert!(BaumWelch::builder()
-        .init(Init::KBins { smoothing: 1.5 })
+        .init(HmmInit::KBins { smoothing: 1.5 })
         .build()
         .is_err());
     // Too few frames for the number of states.
@@ -1148,8 +1179,15 @@ fn information_criteria_count_parameters() {
     assert_eq!(cat.n_parameters(), 1 + 2 + 2 * 4);
     let poi = Hmm::new(vec![0.5, 0.5], vec![0.5; 4], Poisson::unit(2, 3).unwrap()).unwrap();
     assert_eq!(poi.n_parameters(), 1 + 2 + 2 * 3);
-    let comp = Gaussian::standard(CovarianceType::Full, 2, d).unwrap();
-    let mix = Mixture::new(vec![0.5; 4], vec![comp.clone(), comp]).unwrap();
+    let comp = Gaussian::standard(
+        CovarianceType::Full,
+        Shape {
+            n_states: 2,
+            dim: d,
+        },
+    )
+    .unwrap();
+    let mix = MixtureEmission::new(vec![0.5; 4], vec![comp.clone(), comp]).unwrap();
     let gmm = Hmm::new(vec![0.5, 0.5], vec![0.5; 4], mix).unwrap();
     // π and A, the S × (M − 1) weights, and M full Gaussians per state.
     let (s2, m) = (2, 2);
@@ -1164,7 +1202,7 @@ fn information_criteria_count_parameters() {
 // ---------------------------------------------------------------------------
 
 /// Each state as a one-component mixture.
-fn as_mixture(g: &Gaussian) -> Mixture<Gaussian> {
+fn as_mixture(g: &Gaussian) -> MixtureEmission<Gaussian> {
     let (s, d) = (g.n_states(), g.dim());
     let comps = (0..s)
         .map(|i| {
@@ -1177,7 +1215,7 @@ fn as_mixture(g: &Gaussian) -> Mixture<Gaussian> {
             Gaussian::new(g.covariance_type(), d, g.mean(i).to_vec(), covs).unwrap()
         })
         .collect();
-    Mixture::new(vec![1.0; s], comps).unwrap()
+    MixtureEmission::new(vec![1.0; s], comps).unwrap()
 }
 
 #[test]

@@ -5,10 +5,11 @@
 //! `ChaCha8Rng` with a fixed seed.
 
 use phasekit::emission::{
-    CovarianceType, Emission, Gaussian, Poisson, Regularization, SequenceSet, SufficientStatistics,
+    CovarianceType, Emission, Gaussian, Poisson, Regularisation, SequenceSet, Shape,
+    SufficientStatistics,
 };
 use phasekit::hmm::{
-    initialise, BaumWelch, Convergence, ExpectedStatistics, Fitted, Hmm, HmmError, Init, Update,
+    initialise, BaumWelch, Convergence, ExpectedStatistics, Hmm, HmmError, HmmFit, HmmInit, Update,
 };
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -167,12 +168,12 @@ fn long_sample_matches_the_model() {
 }
 
 // ---------------------------------------------------------------------------
-// Init::Random
+// HmmInit::Random
 // ---------------------------------------------------------------------------
 
 fn random_init(seed: u64) -> BaumWelch {
     BaumWelch::builder()
-        .init(Init::Random)
+        .init(HmmInit::Random)
         .seed(seed)
         .max_iter(200)
         .build()
@@ -183,7 +184,14 @@ fn random_init(seed: u64) -> BaumWelch {
 fn random_initialisation_fits_reproducibly_and_depends_on_the_seed() {
     let truth = three_state();
     let data = sample_set(&truth, 8, 150, 10);
-    let template = Gaussian::standard(CovarianceType::Diagonal, 3, 2).unwrap();
+    let template = Gaussian::standard(
+        CovarianceType::Diagonal,
+        Shape {
+            n_states: 3,
+            dim: 2,
+        },
+    )
+    .unwrap();
 
     let a = random_init(5).fit(&template, &data).unwrap();
     let b = random_init(5).fit(&template, &data).unwrap();
@@ -219,10 +227,10 @@ fn random_initialisation_fits_reproducibly_and_depends_on_the_seed() {
         a.report.log_likelihood[0].to_bits(),
         c.report.log_likelihood[0].to_bits()
     );
-    let reg = Regularization::none();
-    let i5 = initialise(&template, &data, Init::Random, &reg, &mut rng(5)).unwrap();
-    let i5b = initialise(&template, &data, Init::Random, &reg, &mut rng(5)).unwrap();
-    let i6 = initialise(&template, &data, Init::Random, &reg, &mut rng(6)).unwrap();
+    let reg = Regularisation::none();
+    let i5 = initialise(&template, &data, HmmInit::Random, &reg, &mut rng(5)).unwrap();
+    let i5b = initialise(&template, &data, HmmInit::Random, &reg, &mut rng(5)).unwrap();
+    let i6 = initialise(&template, &data, HmmInit::Random, &reg, &mut rng(6)).unwrap();
     assert_eq!(gaussian_bits(&i5), gaussian_bits(&i5b));
     assert_ne!(gaussian_bits(&i5), gaussian_bits(&i6));
     // Random rows are proper distributions with no structural zero.
@@ -234,7 +242,7 @@ fn random_initialisation_fits_reproducibly_and_depends_on_the_seed() {
 // Restarts
 // ---------------------------------------------------------------------------
 
-fn final_objective<E: Emission>(f: &Fitted<E>) -> f64 {
+fn final_objective<E: Emission>(f: &HmmFit<E>) -> f64 {
     *f.report.objective.last().unwrap()
 }
 
@@ -242,15 +250,22 @@ fn final_objective<E: Emission>(f: &Fitted<E>) -> f64 {
 fn restarts_return_the_run_with_the_best_final_objective() {
     let truth = three_state();
     let data = sample_set(&truth, 4, 60, 20);
-    let template = Gaussian::standard(CovarianceType::Full, 3, 2).unwrap();
+    let template = Gaussian::standard(
+        CovarianceType::Full,
+        Shape {
+            n_states: 3,
+            dim: 2,
+        },
+    )
+    .unwrap();
     // A proper prior, so that the objective differs from log p(X) and the
     // test sees which of the two is compared; few iterations, so that runs
     // from different random starts end at different objectives.
-    let reg = Regularization::inverse_wishart(0.5, 3.0).unwrap();
+    let reg = Regularisation::inverse_wishart(0.5, 3.0).unwrap();
     let settings = |seed: u64, restarts: usize| {
         BaumWelch::builder()
-            .init(Init::Random)
-            .regularization(reg)
+            .init(HmmInit::Random)
+            .regularisation(reg)
             .max_iter(4)
             .tol(f64::NEG_INFINITY)
             .restarts(restarts)
@@ -303,8 +318,8 @@ fn baum_welch_settings_round_trip_and_bad_ones_are_refused() {
         .max_iter(17)
         .tol(1e-6)
         .convergence(Convergence::MeanPerFrame)
-        .regularization(
-            Regularization::inverse_wishart(0.1, 2.0)
+        .regularisation(
+            Regularisation::inverse_wishart(0.1, 2.0)
                 .unwrap()
                 .with_max_jitter(1e-6)
                 .unwrap()
@@ -316,7 +331,7 @@ fn baum_welch_settings_round_trip_and_bad_ones_are_refused() {
             transition: true,
             emission: true,
         })
-        .init(Init::KBins { smoothing: 0.2 })
+        .init(HmmInit::KBins { smoothing: 0.2 })
         .restarts(3)
         .seed(9)
         .threads(2)
@@ -358,18 +373,18 @@ fn baum_welch_settings_round_trip_and_bad_ones_are_refused() {
     );
     // Nested regularisation is validated too.
     refuse(
-        &|v| v["regularization"]["covariance"] = serde_json::json!({ "AddDiagonal": -1.0 }),
+        &|v| v["regularisation"]["covariance"] = serde_json::json!({ "AddDiagonal": -1.0 }),
         &["covariance regularisation", "non-negative", "-1"],
     );
     refuse(
         &|v| {
-            v["regularization"]["covariance"] =
+            v["regularisation"]["covariance"] =
                 serde_json::json!({ "InverseWishart": { "scale": 0.0, "dof": 1.0 } })
         },
         &["inverse-Wishart scale", "positive"],
     );
     refuse(
-        &|v| v["regularization"]["min_weight"] = (-1.0).into(),
+        &|v| v["regularisation"]["min_weight"] = (-1.0).into(),
         &["`min_weight`"],
     );
     // JSON cannot spell NaN (serde_json writes it as null): refused as a type
@@ -431,9 +446,15 @@ fn merging_statistics_of_another_shape_is_an_error_not_a_truncation() {
     let mut long_trans = stats.clone();
     long_trans.transitions.push(1.0);
     let other_emission = ExpectedStatistics {
-        emission: Gaussian::standard(CovarianceType::Diagonal, 3, 1)
-            .unwrap()
-            .new_stats(),
+        emission: Gaussian::standard(
+            CovarianceType::Diagonal,
+            Shape {
+                n_states: 3,
+                dim: 1,
+            },
+        )
+        .unwrap()
+        .new_stats(),
         ..stats.clone()
     };
     let mut acc = stats.clone();
@@ -468,7 +489,7 @@ fn merging_statistics_of_another_shape_is_an_error_not_a_truncation() {
 #[test]
 fn maximise_refuses_misshapen_or_invalid_statistics() {
     let (hmm, stats) = statistics();
-    let reg = Regularization::none();
+    let reg = Regularisation::none();
     let up = Update::default();
     // The good case works and gives proper distributions.
     let (next, _) = hmm.maximise(&stats, up, &reg).unwrap();
@@ -514,9 +535,15 @@ fn maximise_refuses_misshapen_or_invalid_statistics() {
     );
     // Emission statistics of another model: the emission's own error.
     let s = ExpectedStatistics {
-        emission: Gaussian::standard(CovarianceType::Full, 3, 2)
-            .unwrap()
-            .new_stats(),
+        emission: Gaussian::standard(
+            CovarianceType::Full,
+            Shape {
+                n_states: 3,
+                dim: 2,
+            },
+        )
+        .unwrap()
+        .new_stats(),
         ..stats
     };
     assert!(matches!(
@@ -626,19 +653,26 @@ fn stop_at(series: &[f64], tol: f64, max_iter: usize) -> usize {
 fn convergence_is_tested_on_the_penalised_objective_under_a_prior() {
     let truth = three_state();
     let data = sample_set(&truth, 4, 50, 50);
-    let template = Gaussian::standard(CovarianceType::Full, 3, 2).unwrap();
+    let template = Gaussian::standard(
+        CovarianceType::Full,
+        Shape {
+            n_states: 3,
+            dim: 2,
+        },
+    )
+    .unwrap();
     let initial = initialise(
         &template,
         &data,
-        Init::Random,
-        &Regularization::none(),
+        HmmInit::Random,
+        &Regularisation::none(),
         &mut rng(51),
     )
     .unwrap();
     let max_iter = 60;
-    let run = |reg: Regularization, tol: f64| {
+    let run = |reg: Regularisation, tol: f64| {
         BaumWelch::builder()
-            .regularization(reg)
+            .regularisation(reg)
             .max_iter(max_iter)
             .tol(tol)
             .build()
@@ -648,11 +682,11 @@ fn convergence_is_tested_on_the_penalised_objective_under_a_prior() {
     };
     // A strong proper prior (ν = 4 > D − 1), so that log p(X) and the
     // objective have visibly different gains.
-    let prior = Regularization::inverse_wishart(4.0, 4.0).unwrap();
+    let prior = Regularisation::inverse_wishart(4.0, 4.0).unwrap();
     for (reg, has_prior) in [
         (prior, true),
-        (Regularization::add_diagonal(1e-2).unwrap(), false),
-        (Regularization::none(), false),
+        (Regularisation::add_diagonal(1e-2).unwrap(), false),
+        (Regularisation::none(), false),
     ] {
         let full = run(reg, f64::NEG_INFINITY);
         let (obj, ll) = (&full.report.objective, &full.report.log_likelihood);
@@ -660,7 +694,7 @@ fn convergence_is_tested_on_the_penalised_objective_under_a_prior() {
         // The objective EM increases is monotone (a proper prior, or none).
         if !matches!(
             reg.covariance(),
-            phasekit::emission::CovarianceRegularization::AddDiagonal(_)
+            phasekit::emission::CovarianceRegularisation::AddDiagonal(_)
         ) {
             assert!(obj.windows(2).all(|w| w[1] >= w[0] - 1e-9 * w[0].abs()));
         }

@@ -10,7 +10,7 @@
 //! `PROPTEST_RNG_SEED`), so every run is reproducible.
 
 use phasekit::emission::{
-    CovarianceType, Emission, EmissionError, Gaussian, Mixture, Poisson, Regularization,
+    CovarianceType, Emission, EmissionError, Gaussian, MixtureEmission, Poisson, Regularisation,
     SequenceSet,
 };
 use phasekit::hmm::{BaumWelch, Hmm, HmmError};
@@ -92,11 +92,11 @@ fn random_poisson(rng: &mut ChaCha8Rng, s: usize, d: usize) -> Poisson {
 }
 
 /// `m` full-covariance Gaussian components per state.
-fn random_mixture(rng: &mut ChaCha8Rng, s: usize, m: usize, d: usize) -> Mixture<Gaussian> {
+fn random_mixture(rng: &mut ChaCha8Rng, s: usize, m: usize, d: usize) -> MixtureEmission<Gaussian> {
     let comps = (0..s)
         .map(|_| random_gaussian(rng, CovarianceType::Full, m, d, 4.0))
         .collect();
-    Mixture::new(stochastic_rows(rng, s, m), comps).unwrap()
+    MixtureEmission::new(stochastic_rows(rng, s, m), comps).unwrap()
 }
 
 /// Four sequences of 15–30 frames sampled from `truth`.
@@ -127,11 +127,11 @@ fn assert_monotone(objective: &[f64]) -> Result<(), TestCaseError> {
     Ok(())
 }
 
-fn em(reg: Regularization) -> BaumWelch {
+fn em(reg: Regularisation) -> BaumWelch {
     BaumWelch::builder()
         .max_iter(12)
         .tol(f64::NEG_INFINITY)
-        .regularization(reg)
+        .regularisation(reg)
         .build()
         .unwrap()
 }
@@ -139,7 +139,7 @@ fn em(reg: Regularization) -> BaumWelch {
 /// Maximum likelihood: `log p(X)` is non-decreasing. Unregularised ML may
 /// collapse a Gaussian onto a few points; it must then say so.
 fn check_ml<E: Emission>(initial: &Hmm<E>, data: &SequenceSet) -> Result<(), TestCaseError> {
-    match em(Regularization::none()).fit_from(initial.clone(), data) {
+    match em(Regularisation::none()).fit_from(initial.clone(), data) {
         Ok(fitted) => {
             prop_assert_eq!(fitted.report.iterations, 12);
             prop_assert_eq!(&fitted.report.objective, &fitted.report.log_likelihood);
@@ -158,7 +158,7 @@ fn check_ml<E: Emission>(initial: &Hmm<E>, data: &SequenceSet) -> Result<(), Tes
 fn check_map<E: Emission>(
     initial: &Hmm<E>,
     data: &SequenceSet,
-    reg: Regularization,
+    reg: Regularisation,
 ) -> Result<(), TestCaseError> {
     let fitted = em(reg)
         .fit_from(initial.clone(), data)
@@ -196,7 +196,7 @@ proptest! {
         check_ml(&initial, &data)?;
         // The inverse-Wishart prior is proper for ν > D − 1; the penalised
         // objective is what EM increases either way.
-        check_map(&initial, &data, Regularization::inverse_wishart(scale, dof).unwrap())?;
+        check_map(&initial, &data, Regularisation::inverse_wishart(scale, dof).unwrap())?;
     }
 
     #[test]
@@ -208,7 +208,7 @@ proptest! {
         let (start, trans) = random_chain(&mut rng, s);
         let initial = Hmm::new(start, trans, random_poisson(&mut rng, s, d)).unwrap();
         // Poisson rates have no prior here: the objective is log p(X).
-        let fitted = em(Regularization::none()).fit_from(initial, &data).unwrap();
+        let fitted = em(Regularisation::none()).fit_from(initial, &data).unwrap();
         prop_assert_eq!(fitted.report.iterations, 12);
         prop_assert_eq!(&fitted.report.objective, &fitted.report.log_likelihood);
         assert_monotone(&fitted.report.log_likelihood)?;
@@ -225,7 +225,7 @@ proptest! {
         check_ml(&initial, &data)?;
         // Inverse-Wishart on every component and a Dirichlet(1 + a) on every
         // state's mixture weights: both are priors whose mode is the M-step.
-        let reg = Regularization::inverse_wishart(scale, dof).unwrap().with_pseudo_count(pseudo).unwrap();
+        let reg = Regularisation::inverse_wishart(scale, dof).unwrap().with_pseudo_count(pseudo).unwrap();
         check_map(&initial, &data, reg)?;
     }
 }

@@ -11,7 +11,7 @@
 
 use nalgebra::{DMatrix, DVector};
 use phasekit::emission::{
-    Categorical, Emission, Frames, Gaussian, GaussianStats, Regularization, SequenceSet,
+    Categorical, Emission, Frames, Gaussian, GaussianStats, Regularisation, SequenceSet,
 };
 use phasekit::hmm::{BaumWelch, ExpectedStatistics, ForwardFilter, Hmm, HmmError};
 use proptest::prelude::*;
@@ -606,11 +606,11 @@ fn assert_monotone(objective: &[f64]) -> Result<(), TestCaseError> {
     Ok(())
 }
 
-fn em(max_iter: usize, reg: Regularization) -> BaumWelch {
+fn em(max_iter: usize, reg: Regularisation) -> BaumWelch {
     BaumWelch::builder()
         .max_iter(max_iter)
         .tol(f64::NEG_INFINITY)
-        .regularization(reg)
+        .regularisation(reg)
         .build()
         .unwrap()
 }
@@ -626,7 +626,7 @@ proptest! {
         let initial = Hmm::new(start, trans, random_gaussian(&mut rng, s, d).emission).unwrap();
 
         // Pure maximum likelihood: log p(X) is non-decreasing.
-        match em(12, Regularization::none()).fit_from(initial.clone(), &data) {
+        match em(12, Regularisation::none()).fit_from(initial.clone(), &data) {
             Ok(fitted) => {
                 prop_assert_eq!(fitted.report.iterations, 12);
                 prop_assert_eq!(&fitted.report.objective, &fitted.report.log_likelihood);
@@ -639,7 +639,7 @@ proptest! {
         }
 
         // MAP under an inverse-Wishart prior: the penalised objective is non-decreasing.
-        let reg = Regularization::inverse_wishart(scale, dof).unwrap();
+        let reg = Regularisation::inverse_wishart(scale, dof).unwrap();
         let fitted = em(12, reg).fit_from(initial.clone(), &data).unwrap();
         prop_assert_eq!(fitted.report.iterations, 12);
         assert_monotone(&fitted.report.objective)?;
@@ -647,7 +647,7 @@ proptest! {
         prop_assert!((prior - fitted.model.emission().log_prior(&reg)).abs() <= 1e-9 * prior.abs().max(1.0));
 
         // add_diagonal is not the mode of a posterior (no monotonicity claim): it just runs.
-        let fitted = em(12, Regularization::add_diagonal(1e-3).unwrap()).fit_from(initial, &data).unwrap();
+        let fitted = em(12, Regularisation::add_diagonal(1e-3).unwrap()).fit_from(initial, &data).unwrap();
         prop_assert!(fitted.report.log_likelihood.iter().all(|v| v.is_finite()));
         prop_assert_eq!(fitted.report.m_steps[0].added_diagonal, 1e-3);
     }
@@ -662,7 +662,7 @@ proptest! {
         let (start, trans) = random_chain(&mut rng, s);
         let initial = Hmm::new(start, trans, Categorical::new(k, stochastic_rows(&mut rng, s, k, 0.0)).unwrap()).unwrap();
         // A random chain may make the data impossible; then the fit must say so.
-        match em(12, Regularization::none()).fit_from(initial, &data) {
+        match em(12, Regularisation::none()).fit_from(initial, &data) {
             Ok(fitted) => assert_monotone(&fitted.report.log_likelihood)?,
             Err(HmmError::ImpossibleSequence { .. }) => {}
             Err(e) => return Err(TestCaseError::fail(format!("fit failed: {e}"))),

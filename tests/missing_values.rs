@@ -20,12 +20,12 @@
 
 use nalgebra::{DMatrix, DVector};
 use phasekit::emission::{
-    Categorical, CovarianceType, Emission, Frames, Gaussian, Mixture, Poisson, Regularization,
-    SequenceSet,
+    Categorical, CovarianceType, Emission, Frames, Gaussian, MixtureEmission, Poisson,
+    Regularisation, SequenceSet, Shape,
 };
-use phasekit::gmm::{Em, Gmm, GmmInit, MixtureModel};
+use phasekit::gmm::{Em, Gmm, GmmInit};
 use phasekit::gmr::{GmmRegression, HmmRegression};
-use phasekit::hmm::{BaumWelch, Hmm, Init};
+use phasekit::hmm::{BaumWelch, Hmm, HmmInit};
 use proptest::prelude::*;
 use proptest::test_runner::RngSeed;
 use rand::{Rng, SeedableRng};
@@ -218,7 +218,7 @@ proptest! {
         // Mixture of full Gaussians per state: log Σ_m w_m N(x_o; μ_m,o, Σ_m,oo).
         let comps: Vec<Gaussian> = (0..2).map(|_| random_gaussian(CovarianceType::Full, 3, 4, &mut rng)).collect();
         let weights = vec![0.2, 0.5, 0.3, 0.6, 0.1, 0.3];
-        let mix = Mixture::new(weights.clone(), comps.clone()).unwrap();
+        let mix = MixtureEmission::new(weights.clone(), comps.clone()).unwrap();
         let mut z: Vec<f64> = (0..t * 4).map(|_| rng.random_range(-3.0..3.0)).collect();
         knock_out(&mut z, 4, 0.4, 0.1, &mut rng);
         let got = mix.log_density(Frames::new(&z, 4).unwrap()).unwrap();
@@ -294,7 +294,7 @@ proptest! {
             g.accumulate(frames.slice(25..t), &w[25 * s..], &mut rest).unwrap();
             phasekit::emission::SufficientStatistics::merge(&mut stats, &rest).unwrap();
             let mut fitted = g.clone();
-            fitted.m_step(&stats, &Regularization::none()).unwrap();
+            fitted.m_step(&stats, &Regularisation::none()).unwrap();
 
             let mut tied_scatter = DMatrix::zeros(d, d);
             let mut tied_n = 0.0;
@@ -363,7 +363,7 @@ proptest! {
         let mut st = pois.new_stats();
         pois.accumulate(Frames::new(&x, 2).unwrap(), &w, &mut st).unwrap();
         let mut fitted = pois.clone();
-        fitted.m_step(&st, &Regularization::none()).unwrap();
+        fitted.m_step(&st, &Regularisation::none()).unwrap();
         for i in 0..2 {
             // Frames with no count observed do not enter the statistics.
             let wt = |tt: usize| if x[tt * 2].is_nan() && x[tt * 2 + 1].is_nan() { 0.0 } else { w[tt * 2 + i] };
@@ -383,7 +383,7 @@ proptest! {
         let mut st = cat.new_stats();
         cat.accumulate(Frames::new(&y, 1).unwrap(), &w, &mut st).unwrap();
         let mut fitted = cat.clone();
-        fitted.m_step(&st, &Regularization::none()).unwrap();
+        fitted.m_step(&st, &Regularisation::none()).unwrap();
         for i in 0..2 {
             // A missing symbol does not enter the counts.
             let n: f64 = (0..t).filter(|&tt| !y[tt].is_nan()).map(|tt| w[tt * 2 + i]).sum();
@@ -486,14 +486,14 @@ proptest! {
             // A proper inverse-Wishart prior keeps every covariance positive
             // definite; EM then increases the penalised objective monotonically.
             let bw = BaumWelch::builder()
-                .regularization(Regularization::inverse_wishart(0.05, 0.0).unwrap())
-                .init(Init::KMeans)
+                .regularisation(Regularisation::inverse_wishart(0.05, 0.0).unwrap())
+                .init(HmmInit::KMeans)
                 .seed(seed)
                 .max_iter(12)
                 .tol(f64::NEG_INFINITY)
                 .build()
                 .unwrap();
-            let fitted = bw.fit(&Gaussian::standard(kind, s, d).unwrap(), &data).unwrap();
+            let fitted = bw.fit(&Gaussian::standard(kind, Shape { n_states: s, dim: d }).unwrap(), &data).unwrap();
             let obj = &fitted.report.objective;
             prop_assert_eq!(obj.len(), 13);
             for w in obj.windows(2) {
@@ -513,14 +513,14 @@ proptest! {
         knock_out(&mut x, d, p, 0.05, &mut rng);
         let frames = Frames::new(&x, d).unwrap();
         let em = Em::builder()
-            .regularization(Regularization::inverse_wishart(0.05, 0.0).unwrap())
+            .regularisation(Regularisation::inverse_wishart(0.05, 0.0).unwrap())
             .init(GmmInit::KMeans)
             .seed(seed)
             .max_iter(15)
             .tol(f64::NEG_INFINITY)
             .build()
             .unwrap();
-        let fitted = em.fit(&Gaussian::standard(CovarianceType::Full, k, d).unwrap(), frames).unwrap();
+        let fitted = em.fit(&Gaussian::standard(CovarianceType::Full, Shape { n_states: k, dim: d }).unwrap(), frames).unwrap();
         let obj = &fitted.report.objective;
         for w in obj.windows(2) {
             prop_assert!(w[1] >= w[0] - 1e-9 * w[0].abs(), "objective fell {} -> {}", w[0], w[1]);
@@ -549,13 +549,20 @@ fn initialisation_with_missing_values_reaches_the_fixed_assignment_optimum() {
         .collect();
     let data = SequenceSet::new(&seqs, 4).unwrap();
     let bw = BaumWelch::builder()
-        .init(Init::KBins { smoothing: 0.01 })
+        .init(HmmInit::KBins { smoothing: 0.01 })
         .max_iter(0)
         .build()
         .unwrap();
     let init = bw
         .fit(
-            &Gaussian::standard(CovarianceType::Full, 3, 4).unwrap(),
+            &Gaussian::standard(
+                CovarianceType::Full,
+                Shape {
+                    n_states: 3,
+                    dim: 4,
+                },
+            )
+            .unwrap(),
             &data,
         )
         .unwrap()
@@ -574,7 +581,7 @@ fn initialisation_with_missing_values_reaches_the_fixed_assignment_optimum() {
         g.accumulate(seq, &w, &mut stats).unwrap();
     }
     let mut again = g.clone();
-    again.m_step(&stats, &Regularization::none()).unwrap();
+    again.m_step(&stats, &Regularisation::none()).unwrap();
     for (a, b) in g.means().iter().zip(again.means()) {
         assert!((a - b).abs() < 1e-5, "means moved: {a} vs {b}");
     }
@@ -731,13 +738,20 @@ fn values_removed_at_random_barely_move_the_fit_and_the_predictions() {
         .map(|_| truth.sample(100, &mut rng).unwrap().0)
         .collect();
     let bw = BaumWelch::builder()
-        .init(Init::KBins { smoothing: 0.01 })
-        .regularization(Regularization::add_diagonal(1e-3).unwrap())
+        .init(HmmInit::KBins { smoothing: 0.01 })
+        .regularisation(Regularisation::add_diagonal(1e-3).unwrap())
         .max_iter(100)
         .tol(1e-6)
         .build()
         .unwrap();
-    let template = Gaussian::standard(CovarianceType::Full, 3, 4).unwrap();
+    let template = Gaussian::standard(
+        CovarianceType::Full,
+        Shape {
+            n_states: 3,
+            dim: 4,
+        },
+    )
+    .unwrap();
     let fit = |seqs: &[Vec<f64>]| {
         bw.fit(&template, &SequenceSet::new(seqs, 4).unwrap())
             .unwrap()
@@ -788,7 +802,7 @@ fn values_removed_at_random_barely_move_the_fit_and_the_predictions() {
 #[test]
 fn mixture_recovery_with_missing_values() {
     let mut rng = ChaCha8Rng::seed_from_u64(41);
-    let truth: Gmm = MixtureModel::new(
+    let truth: Gmm = Gmm::new(
         vec![0.3, 0.3, 0.4],
         Gaussian::full(
             2,
@@ -808,7 +822,14 @@ fn mixture_recovery_with_missing_values() {
         .unwrap();
     let fitted = em
         .fit(
-            &Gaussian::standard(CovarianceType::Full, 3, 2).unwrap(),
+            &Gaussian::standard(
+                CovarianceType::Full,
+                Shape {
+                    n_states: 3,
+                    dim: 2,
+                },
+            )
+            .unwrap(),
             Frames::new(&x, 2).unwrap(),
         )
         .unwrap()
@@ -843,14 +864,21 @@ fn an_added_diagonal_is_not_compounded_by_missing_values() {
     let mut holes = complete.clone();
     knock_out(&mut holes, 2, 0.3, 0.0, &mut rng);
     let em = Em::builder()
-        .regularization(Regularization::add_diagonal(0.5).unwrap())
+        .regularisation(Regularisation::add_diagonal(0.5).unwrap())
         .max_iter(500)
         .tol(1e-12)
         .build()
         .unwrap();
     let fit = |x: &[f64]| {
         em.fit(
-            &Gaussian::standard(CovarianceType::Full, 1, 2).unwrap(),
+            &Gaussian::standard(
+                CovarianceType::Full,
+                Shape {
+                    n_states: 1,
+                    dim: 2,
+                },
+            )
+            .unwrap(),
             Frames::new(x, 2).unwrap(),
         )
         .unwrap()

@@ -21,8 +21,8 @@
 //!   `after_one_step_hmmlearn`.
 
 use phasekit::emission::{
-    Categorical, CovarianceType, Emission, Frames, Gaussian, Mixture, Poisson, Regularization,
-    SequenceSet,
+    Categorical, CovarianceType, Emission, Frames, Gaussian, MixtureEmission, Poisson,
+    Regularisation, SequenceSet,
 };
 use phasekit::hmm::{BaumWelch, Hmm};
 use serde_json::Value;
@@ -232,7 +232,7 @@ fn gaussian_from(c: &Value, params: &Value) -> Gaussian {
     .expect("fixture Gaussian")
 }
 
-fn mixture_from(c: &Value, params: &Value) -> Mixture<Gaussian> {
+fn mixture_from(c: &Value, params: &Value) -> MixtureEmission<Gaussian> {
     let (s, m, d) = (
         usize_of(&c["n_states"]),
         usize_of(&c["n_mix"]),
@@ -250,7 +250,7 @@ fn mixture_from(c: &Value, params: &Value) -> Mixture<Gaussian> {
             .expect("fixture GMM component")
         })
         .collect();
-    Mixture::new(flat(&params["weights"]), components).expect("fixture mixture")
+    MixtureEmission::new(flat(&params["weights"]), components).expect("fixture mixture")
 }
 
 fn hmm_from<E: Emission>(params: &Value, emission: E) -> Hmm<E> {
@@ -356,7 +356,7 @@ fn check_inference<E: Emission>(chk: &mut Checker, c: &Value, hmm: &Hmm<E>) -> H
     let bw = BaumWelch::builder()
         .max_iter(1)
         .tol(f64::NEG_INFINITY)
-        .regularization(Regularization::none())
+        .regularisation(Regularisation::none())
         .build()
         .unwrap();
     let fitted = bw.fit_from(hmm.clone(), &data).unwrap();

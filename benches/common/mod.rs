@@ -15,9 +15,9 @@
 #![allow(dead_code)]
 
 use nalgebra::DMatrix;
-use phasekit::emission::{CovarianceType, Emission, Gaussian, Regularization, SequenceSet};
+use phasekit::emission::{CovarianceType, Emission, Gaussian, Regularisation, SequenceSet, Shape};
 use phasekit::gmm::Gmm;
-use phasekit::hmm::{initialise, Hmm, Init};
+use phasekit::hmm::{initialise, Hmm, HmmInit};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use std::path::PathBuf;
@@ -156,11 +156,11 @@ pub struct HmmWorkload {
 
 impl HmmWorkload {
     /// `IW(ψ I, 0)`, or plain maximum likelihood when `ψ = 0`.
-    pub fn reg(&self) -> Regularization {
+    pub fn reg(&self) -> Regularisation {
         if self.iw_scale > 0.0 {
-            Regularization::inverse_wishart(self.iw_scale, 0.0).expect("valid prior")
+            Regularisation::inverse_wishart(self.iw_scale, 0.0).expect("valid prior")
         } else {
-            Regularization::none()
+            Regularisation::none()
         }
     }
     pub fn n_states(&self) -> usize {
@@ -176,13 +176,20 @@ pub fn paper_workload(cols: Columns, k: usize) -> Option<HmmWorkload> {
     let data = nuisi_handshake(cols)?;
     let d = data.dim();
     let iw_scale = 1e-6;
-    let reg = Regularization::inverse_wishart(iw_scale, 0.0).expect("valid prior");
-    let template = Gaussian::standard(CovarianceType::Full, k, d).expect("template");
+    let reg = Regularisation::inverse_wishart(iw_scale, 0.0).expect("valid prior");
+    let template = Gaussian::standard(
+        CovarianceType::Full,
+        Shape {
+            n_states: k,
+            dim: d,
+        },
+    )
+    .expect("template");
     let mut rng = ChaCha8Rng::seed_from_u64(0);
     let init = initialise(
         &template,
         &data,
-        Init::KBins { smoothing: 0.01 },
+        HmmInit::KBins { smoothing: 0.01 },
         &reg,
         &mut rng,
     )
@@ -299,7 +306,7 @@ pub struct GmmWorkload {
     pub data: Vec<f64>,
     pub dim: usize,
     pub init: Gmm,
-    /// scikit-learn's `reg_covar`: `Regularization::add_diagonal`.
+    /// scikit-learn's `reg_covar`: `Regularisation::add_diagonal`.
     pub reg_covar: f64,
     pub n_iter: usize,
 }

@@ -9,7 +9,7 @@
 mod common;
 
 use common::{phasekit, write_frames};
-use phasekit_emission::{CovarianceType, Gaussian, Regularization, SequenceSet};
+use phasekit_emission::{CovarianceType, Gaussian, Regularisation, SequenceSet};
 use phasekit_hmm::{BaumWelch, Hmm};
 use phasekit_tsc::synthetic;
 use std::path::{Path, PathBuf};
@@ -379,7 +379,7 @@ fn empty_state_case() -> Row {
     )
     .unwrap();
     let bw = BaumWelch::builder()
-        .regularization(Regularization::add_diagonal(1e-4).unwrap())
+        .regularisation(Regularisation::add_diagonal(1e-4).unwrap())
         .max_iter(20)
         .build()
         .unwrap();

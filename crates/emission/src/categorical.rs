@@ -3,7 +3,7 @@
 //! Frames are one-dimensional and hold the symbol as a whole number.
 
 use crate::error::{EmissionError, Result};
-use crate::regularization::{MStepEvent, MStepReport, Regularization};
+use crate::regularisation::{MStepEvent, MStepReport, Regularisation};
 use crate::{check_dim, check_len, check_state, Emission, Frames, SufficientStatistics};
 use rand::Rng;
 use serde::{Deserialize, Serialize};
@@ -222,7 +222,7 @@ impl Emission for Categorical {
         Ok(())
     }
 
-    fn m_step(&mut self, stats: &CategoricalStats, reg: &Regularization) -> Result<MStepReport> {
+    fn m_step(&mut self, stats: &CategoricalStats, reg: &Regularisation) -> Result<MStepReport> {
         let (s, k) = (self.n_states(), self.n_symbols);
         if stats.n_symbols != k || stats.counts.len() != s * k {
             return Err(EmissionError::StatsMismatch(
@@ -252,7 +252,7 @@ impl Emission for Categorical {
         Ok(report)
     }
 
-    fn log_prior(&self, reg: &Regularization) -> f64 {
+    fn log_prior(&self, reg: &Regularisation) -> f64 {
         let a = reg.pseudo_count();
         if a == 0.0 {
             return 0.0;

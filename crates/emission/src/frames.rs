@@ -301,3 +301,16 @@ impl SequenceSet {
         Self::new(&seqs, self.dim)
     }
 }
+
+/// The shape of an emission: `n_states` distributions over frames of `dim` values.
+///
+/// Named fields, so that a call such as
+/// `Gaussian::standard(CovarianceType::Full, Shape { n_states: 4, dim: 12 })`
+/// says which number is which.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct Shape {
+    /// Number of states `S`.
+    pub n_states: usize,
+    /// Dimension `D` of a frame.
+    pub dim: usize,
+}

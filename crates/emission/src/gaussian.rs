@@ -16,9 +16,9 @@
 use crate::error::{EmissionError, Result};
 use crate::linalg::{self, packed_len, packed_lower_sq_norm, LANES};
 use crate::missing::{for_each_run, observed_dims, PatternCache};
-use crate::regularization::{CovarianceRegularization, MStepEvent, MStepReport, Regularization};
+use crate::regularisation::{CovarianceRegularisation, MStepEvent, MStepReport, Regularisation};
 use crate::{
-    check_dim, check_dims, check_len, check_state, Emission, Frames, SufficientStatistics,
+    check_dim, check_dims, check_len, check_state, Emission, Frames, Shape, SufficientStatistics,
 };
 use nalgebra::DMatrix;
 use rand::Rng;
@@ -271,7 +271,15 @@ impl Gaussian {
 
     /// `S` states with zero means and identity covariances: a template whose
     /// parameters an initialisation or M-step fills in.
-    pub fn standard(kind: CovarianceType, n_states: usize, dim: usize) -> Result<Self> {
+    ///
+    /// ```
+    /// use phasekit_emission::{CovarianceType, Emission, Gaussian, Shape};
+    /// let template = Gaussian::standard(CovarianceType::Full, Shape { n_states: 4, dim: 12 })?;
+    /// assert_eq!((template.n_states(), template.dim()), (4, 12));
+    /// # Ok::<(), phasekit_emission::EmissionError>(())
+    /// ```
+    pub fn standard(kind: CovarianceType, shape: Shape) -> Result<Self> {
+        let Shape { n_states, dim } = shape;
         if n_states == 0 {
             return Err(invalid("n_states", "must be at least 1".into()));
         }
@@ -912,7 +920,7 @@ impl Gaussian {
         })
     }
 
-    fn kept(&self, i: usize, stats: &GaussianStats, reg: &Regularization) -> bool {
+    fn kept(&self, i: usize, stats: &GaussianStats, reg: &Regularisation) -> bool {
         stats.weight[i] < reg.min_weight().max(f64::MIN_POSITIVE)
     }
 
@@ -939,21 +947,21 @@ impl Gaussian {
     fn regularised_full(
         scatter: DMatrix<f64>,
         n: f64,
-        reg: &Regularization,
+        reg: &Regularisation,
         state: usize,
         events: &mut Vec<MStepEvent>,
     ) -> Result<DMatrix<f64>> {
         let d = scatter.nrows();
         let mut cov = match reg.covariance() {
-            CovarianceRegularization::None => scatter / n,
-            CovarianceRegularization::AddDiagonal(r) => {
+            CovarianceRegularisation::None => scatter / n,
+            CovarianceRegularisation::AddDiagonal(r) => {
                 let mut c = scatter / n;
                 for k in 0..d {
                     c[(k, k)] += r;
                 }
                 c
             }
-            CovarianceRegularization::InverseWishart { scale, dof } => {
+            CovarianceRegularisation::InverseWishart { scale, dof } => {
                 let mut c = scatter;
                 for k in 0..d {
                     c[(k, k)] += scale;
@@ -1003,7 +1011,7 @@ impl Gaussian {
     /// diagonal) when allowed, or errors naming `state`.
     fn jitter_variances(
         vars: &mut [f64],
-        reg: &Regularization,
+        reg: &Regularisation,
         state: usize,
         events: &mut Vec<MStepEvent>,
     ) -> Result<()> {
@@ -1046,12 +1054,12 @@ impl Gaussian {
 
     /// Variance update for diagonal/spherical structure: scatter `q` (sum of squared
     /// deviations), weight `n`, `k` pooled dimensions.
-    fn regularised_var(q: f64, n: f64, k: f64, d: f64, reg: &Regularization) -> f64 {
+    fn regularised_var(q: f64, n: f64, k: f64, d: f64, reg: &Regularisation) -> f64 {
         let q = q.max(0.0);
         match reg.covariance() {
-            CovarianceRegularization::None => q / (n * k),
-            CovarianceRegularization::AddDiagonal(r) => q / (n * k) + r,
-            CovarianceRegularization::InverseWishart { scale, dof } => {
+            CovarianceRegularisation::None => q / (n * k),
+            CovarianceRegularisation::AddDiagonal(r) => q / (n * k) + r,
+            CovarianceRegularisation::InverseWishart { scale, dof } => {
                 (q + k * scale) / (k * (n + dof + d + 1.0))
             }
         }
@@ -1459,7 +1467,7 @@ impl Emission for Gaussian {
         Ok(())
     }
 
-    fn m_step(&mut self, stats: &GaussianStats, reg: &Regularization) -> Result<MStepReport> {
+    fn m_step(&mut self, stats: &GaussianStats, reg: &Regularisation) -> Result<MStepReport> {
         let (s, d) = (self.n_states, self.dim);
         if !stats.has_shape(self.kind, s, d) {
             return Err(EmissionError::StatsMismatch(
@@ -1468,7 +1476,7 @@ impl Emission for Gaussian {
         }
         let mut report = MStepReport {
             added_diagonal: match reg.covariance() {
-                CovarianceRegularization::AddDiagonal(r) => r,
+                CovarianceRegularisation::AddDiagonal(r) => r,
                 _ => 0.0,
             },
             events: Vec::new(),
@@ -1575,8 +1583,8 @@ impl Emission for Gaussian {
         Ok(report)
     }
 
-    fn log_prior(&self, reg: &Regularization) -> f64 {
-        let CovarianceRegularization::InverseWishart { scale, dof } = reg.covariance() else {
+    fn log_prior(&self, reg: &Regularisation) -> f64 {
+        let CovarianceRegularisation::InverseWishart { scale, dof } = reg.covariance() else {
             return 0.0;
         };
         let d = self.dim;

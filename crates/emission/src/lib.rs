@@ -11,13 +11,13 @@
 //!   `Σ_t γ_t(i) φ(x_t)` of a block to a [`SufficientStatistics`] value, which
 //!   can be built per thread or per sequence and merged in a fixed order;
 //! * [`Emission::m_step`] re-estimates the parameters from merged statistics
-//!   with explicit [`Regularization`], and reports what it had to do;
+//!   with explicit [`Regularisation`], and reports what it had to do;
 //! * [`Emission::marginal`] restricts every state to a subset of dimensions
 //!   (the human's dimensions of a joint human–robot model);
 //! * [`Emission::sample_into`] draws a frame from one state.
 //!
 //! Implementations: [`Gaussian`] (full, diagonal, spherical and tied
-//! covariance), [`Categorical`], [`Poisson`] and [`Mixture`] (a mixture of any
+//! covariance), [`Categorical`], [`Poisson`] and [`MixtureEmission`] (a mixture of any
 //! emission per state, e.g. hmmlearn's GMMHMM).
 //!
 //! Missing values: a NaN in a frame means "not observed". Every implementation
@@ -50,15 +50,15 @@ pub mod linalg;
 mod missing;
 pub mod mixture;
 pub mod poisson;
-pub mod regularization;
+pub mod regularisation;
 
 pub use categorical::{Categorical, CategoricalStats};
 pub use error::{EmissionError, Result};
-pub use frames::{Frames, SequenceSet};
+pub use frames::{Frames, SequenceSet, Shape};
 pub use gaussian::{CovarianceType, Gaussian, GaussianStats};
-pub use mixture::{Mixture, MixtureStats};
+pub use mixture::{MixtureEmission, MixtureEmissionStats};
 pub use poisson::{Poisson, PoissonStats};
-pub use regularization::{CovarianceRegularization, MStepEvent, MStepReport, Regularization};
+pub use regularisation::{CovarianceRegularisation, MStepEvent, MStepReport, Regularisation};
 
 use rand::Rng;
 use std::fmt::Debug;
@@ -122,12 +122,12 @@ pub trait Emission: Clone + Debug + Send + Sync {
 
     /// Re-estimates the parameters from `stats` (maximum likelihood, or MAP
     /// when `reg` is a prior). On error `self` is left unchanged.
-    fn m_step(&mut self, stats: &Self::Stats, reg: &Regularization) -> Result<MStepReport>;
+    fn m_step(&mut self, stats: &Self::Stats, reg: &Regularisation) -> Result<MStepReport>;
 
     /// Log-density of the prior implied by `reg` at the current parameters,
     /// up to a constant; 0 when `reg` is not a prior. EM increases
     /// `log p(X) + log_prior` monotonically when `reg` is a proper prior.
-    fn log_prior(&self, reg: &Regularization) -> f64 {
+    fn log_prior(&self, reg: &Regularisation) -> f64 {
         let _ = reg;
         0.0
     }
@@ -169,7 +169,7 @@ const MAX_REFINE: usize = 200;
 pub fn fit_weighted<E: Emission>(
     template: &E,
     parts: &[(Frames<'_>, &[f64])],
-    reg: &Regularization,
+    reg: &Regularisation,
 ) -> Result<(E, MStepReport)> {
     let step = |model: &E| -> Result<(E, MStepReport)> {
         let mut stats = model.new_stats();

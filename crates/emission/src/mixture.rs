@@ -2,13 +2,13 @@
 //! `b_i(x) = Σ_m w_{i,m} c_{i,m}(x)`, `log b_i(x) = logsumexp_m (log w_{i,m} + log c_{i,m}(x))`.
 //!
 //! Each state's components are themselves an [`Emission`] with `M` states, so
-//! `Mixture<Gaussian>` is hmmlearn's GMMHMM emission and any other emission can
+//! `MixtureEmission<Gaussian>` is hmmlearn's GMMHMM emission and any other emission can
 //! be mixed the same way. The E-step splits the state posterior `γ_t(i)` over the
 //! components in proportion to `w_{i,m} c_{i,m}(x_t)`.
 
 use crate::error::{EmissionError, Result};
 use crate::linalg::log_sum_exp;
-use crate::regularization::{MStepEvent, MStepReport, Regularization};
+use crate::regularisation::{MStepEvent, MStepReport, Regularisation};
 use crate::{check_len, check_state, Emission, Frames, SufficientStatistics};
 use rand::Rng;
 use serde::{Deserialize, Serialize};
@@ -42,22 +42,22 @@ struct MixtureParams<E> {
     into = "MixtureParams<E>",
     bound = "E: Emission + Serialize + for<'a> Deserialize<'a>"
 )]
-pub struct Mixture<E: Emission> {
+pub struct MixtureEmission<E: Emission> {
     /// `S × M` mixture weights, rows sum to 1.
     weights: Vec<f64>,
     log_weights: Vec<f64>,
     components: Vec<E>,
 }
 
-impl<E: Emission> TryFrom<MixtureParams<E>> for Mixture<E> {
+impl<E: Emission> TryFrom<MixtureParams<E>> for MixtureEmission<E> {
     type Error = EmissionError;
     fn try_from(p: MixtureParams<E>) -> Result<Self> {
-        Mixture::new(p.weights, p.components)
+        MixtureEmission::new(p.weights, p.components)
     }
 }
 
-impl<E: Emission> From<Mixture<E>> for MixtureParams<E> {
-    fn from(m: Mixture<E>) -> Self {
+impl<E: Emission> From<MixtureEmission<E>> for MixtureParams<E> {
+    fn from(m: MixtureEmission<E>) -> Self {
         MixtureParams {
             weights: m.weights,
             components: m.components,
@@ -65,7 +65,7 @@ impl<E: Emission> From<Mixture<E>> for MixtureParams<E> {
     }
 }
 
-impl<E: Emission> Mixture<E> {
+impl<E: Emission> MixtureEmission<E> {
     /// One mixture per entry of `components` (each with `M` states, all of one
     /// dimension); `weights` is `S × M` row-major with rows summing to 1.
     pub fn new(weights: Vec<f64>, components: Vec<E>) -> Result<Self> {
@@ -98,7 +98,7 @@ impl<E: Emission> Mixture<E> {
             .iter()
             .map(|w| if *w > 0.0 { w.ln() } else { f64::NEG_INFINITY })
             .collect();
-        Ok(Mixture {
+        Ok(MixtureEmission {
             weights,
             log_weights,
             components,
@@ -133,15 +133,15 @@ impl<E: Emission> Mixture<E> {
     }
 }
 
-/// Statistics of a [`Mixture`]: component weights and each state's inner statistics.
+/// Statistics of a [`MixtureEmission`]: component weights and each state's inner statistics.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct MixtureStats<S> {
+pub struct MixtureEmissionStats<S> {
     /// `S × M` expected component counts.
     weight: Vec<f64>,
     inner: Vec<S>,
 }
 
-impl<S: SufficientStatistics> SufficientStatistics for MixtureStats<S> {
+impl<S: SufficientStatistics> SufficientStatistics for MixtureEmissionStats<S> {
     fn merge(&mut self, other: &Self) -> Result<()> {
         if self.weight.len() != other.weight.len() || self.inner.len() != other.inner.len() {
             return Err(EmissionError::StatsMismatch(
@@ -166,8 +166,8 @@ impl<S: SufficientStatistics> SufficientStatistics for MixtureStats<S> {
     }
 }
 
-impl<E: Emission> Emission for Mixture<E> {
-    type Stats = MixtureStats<E::Stats>;
+impl<E: Emission> Emission for MixtureEmission<E> {
+    type Stats = MixtureEmissionStats<E::Stats>;
 
     fn n_states(&self) -> usize {
         self.components.len()
@@ -196,7 +196,7 @@ impl<E: Emission> Emission for Mixture<E> {
     }
 
     fn new_stats(&self) -> Self::Stats {
-        MixtureStats {
+        MixtureEmissionStats {
             weight: vec![0.0; self.weights.len()],
             inner: self.components.iter().map(|c| c.new_stats()).collect(),
         }
@@ -249,7 +249,7 @@ impl<E: Emission> Emission for Mixture<E> {
         })
     }
 
-    fn m_step(&mut self, stats: &Self::Stats, reg: &Regularization) -> Result<MStepReport> {
+    fn m_step(&mut self, stats: &Self::Stats, reg: &Regularisation) -> Result<MStepReport> {
         let (s, m) = (self.n_states(), self.n_components());
         if stats.inner.len() != s || stats.weight.len() != s * m {
             return Err(EmissionError::StatsMismatch(
@@ -288,11 +288,11 @@ impl<E: Emission> Emission for Mixture<E> {
                 })?;
             report.absorb_components(i, inner);
         }
-        *self = Mixture::new(weights, components)?;
+        *self = MixtureEmission::new(weights, components)?;
         Ok(report)
     }
 
-    fn log_prior(&self, reg: &Regularization) -> f64 {
+    fn log_prior(&self, reg: &Regularisation) -> f64 {
         let a = reg.pseudo_count();
         let w = if a > 0.0 {
             a * self.log_weights.iter().sum::<f64>()
@@ -312,7 +312,7 @@ impl<E: Emission> Emission for Mixture<E> {
             .iter()
             .map(|c| c.marginal(dims))
             .collect::<Result<Vec<_>>>()?;
-        Mixture::new(self.weights.clone(), components)
+        MixtureEmission::new(self.weights.clone(), components)
     }
 
     fn sample_into<R: Rng + ?Sized>(

@@ -2,7 +2,7 @@
 //! `log b_i(x) = Σ_d (x_d log λ_{i,d} − λ_{i,d} − log Γ(x_d + 1))`.
 
 use crate::error::{EmissionError, Result};
-use crate::regularization::{MStepEvent, MStepReport, Regularization};
+use crate::regularisation::{MStepEvent, MStepReport, Regularisation};
 use crate::{
     check_dim, check_dims, check_len, check_state, Emission, Frames, SufficientStatistics,
 };
@@ -232,7 +232,7 @@ impl Emission for Poisson {
         Ok(())
     }
 
-    fn m_step(&mut self, stats: &PoissonStats, reg: &Regularization) -> Result<MStepReport> {
+    fn m_step(&mut self, stats: &PoissonStats, reg: &Regularisation) -> Result<MStepReport> {
         let (s, d) = (self.n_states(), self.dim);
         if !stats.has_shape(s, d) {
             return Err(EmissionError::StatsMismatch(

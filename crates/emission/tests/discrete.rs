@@ -4,7 +4,7 @@ mod common;
 
 use common::*;
 use phasekit_emission::{
-    Categorical, Emission, EmissionError, Frames, MStepEvent, Poisson, Regularization,
+    Categorical, Emission, EmissionError, Frames, MStepEvent, Poisson, Regularisation,
     SufficientStatistics,
 };
 use proptest::prelude::*;
@@ -71,7 +71,7 @@ proptest! {
         prop_assert!(close(st.total_weight(), all.total_weight(), 1e-12));
         prop_assert!(close(st.total_weight(), w.iter().sum(), 1e-12));
 
-        let reg = Regularization::none().with_pseudo_count(a).unwrap();
+        let reg = Regularisation::none().with_pseudo_count(a).unwrap();
         c.m_step(&st, &reg).unwrap();
         for i in 0..s {
             let n: f64 = (0..t).map(|tt| w[tt * s + i]).sum();
@@ -125,7 +125,7 @@ fn categorical_empty_state_kept_zero_probability_is_neg_inf_and_shapes_checked()
     let mut st = c.new_stats();
     c.accumulate(frames, &[0.0, 1.0, 0.0, 1.0, 0.0, 1.0], &mut st)
         .unwrap();
-    let report = c.m_step(&st, &Regularization::none()).unwrap();
+    let report = c.m_step(&st, &Regularisation::none()).unwrap();
     assert_eq!(
         report.events,
         vec![MStepEvent::KeptEmptyState {
@@ -150,7 +150,7 @@ fn categorical_empty_state_kept_zero_probability_is_neg_inf_and_shapes_checked()
         assert_eq!(mine, snapshot);
         let mut m = c.clone();
         assert!(m
-            .m_step(&other.new_stats(), &Regularization::none())
+            .m_step(&other.new_stats(), &Regularisation::none())
             .is_err());
         assert_eq!(m.probabilities(), c.probabilities());
         assert!(c
@@ -236,8 +236,8 @@ proptest! {
         let mut all = p.new_stats();
         p.accumulate(frames, &w, &mut all).unwrap();
         let (mut q, mut r) = (p.clone(), p.clone());
-        q.m_step(&st, &Regularization::none()).unwrap();
-        r.m_step(&all, &Regularization::none()).unwrap();
+        q.m_step(&st, &Regularisation::none()).unwrap();
+        r.m_step(&all, &Regularisation::none()).unwrap();
         for (a, b) in q.rates().iter().zip(r.rates()) {
             prop_assert!(close(*a, *b, 1e-12));
         }
@@ -273,7 +273,7 @@ fn poisson_zero_rate_is_exact_and_never_nan() {
     let frames = Frames::new(&data, 2).unwrap();
     let mut st = p.new_stats();
     p.accumulate(frames, &[1.0, 1.0], &mut st).unwrap();
-    p.m_step(&st, &Regularization::none()).unwrap();
+    p.m_step(&st, &Regularisation::none()).unwrap();
     assert_eq!(p.rates(), &[0.0, 5.0]);
     let ld = p
         .log_density(Frames::new(&[0.0, 5.0, 1.0, 5.0], 2).unwrap())
@@ -326,7 +326,7 @@ fn poisson_empty_state_and_shape_mismatch() {
     let mut st = p.new_stats();
     p.accumulate(frames, &[1.0, 0.0, 1.0, 0.0], &mut st)
         .unwrap();
-    let report = p.m_step(&st, &Regularization::none()).unwrap();
+    let report = p.m_step(&st, &Regularisation::none()).unwrap();
     assert_eq!(
         report.events,
         vec![MStepEvent::KeptEmptyState {
@@ -349,7 +349,7 @@ fn poisson_empty_state_and_shape_mismatch() {
         assert_eq!(mine, snapshot);
         let mut m = p.clone();
         assert!(m
-            .m_step(&other.new_stats(), &Regularization::none())
+            .m_step(&other.new_stats(), &Regularisation::none())
             .is_err());
         assert_eq!(m.rates(), p.rates());
     }

@@ -7,8 +7,8 @@ mod common;
 use common::*;
 use nalgebra::{DMatrix, DVector};
 use phasekit_emission::{
-    CovarianceType, Emission, EmissionError, Frames, Gaussian, MStepEvent, Mixture, Regularization,
-    SufficientStatistics,
+    CovarianceType, Emission, EmissionError, Frames, Gaussian, MStepEvent, MixtureEmission,
+    Regularisation, Shape, SufficientStatistics,
 };
 use proptest::prelude::*;
 use rand::seq::SliceRandom;
@@ -276,12 +276,12 @@ fn check_m_step(kind: CovarianceType, seed: u64, d: usize, s: usize, t: usize, r
     let weights = random_weights(t, s, &mut rng);
     let xs = frame_rows(&data, d);
     let st = stats_for(&model, &data, &weights);
-    let regularization = match reg {
-        Reg::None => Regularization::none(),
-        Reg::Add(r) => Regularization::add_diagonal(r).unwrap(),
-        Reg::Iw(psi, nu) => Regularization::inverse_wishart(psi, nu).unwrap(),
+    let regularisation = match reg {
+        Reg::None => Regularisation::none(),
+        Reg::Add(r) => Regularisation::add_diagonal(r).unwrap(),
+        Reg::Iw(psi, nu) => Regularisation::inverse_wishart(psi, nu).unwrap(),
     };
-    let report = model.m_step(&st, &regularization).unwrap();
+    let report = model.m_step(&st, &regularisation).unwrap();
     assert!(report.events.is_empty(), "{:?}", report.events);
     match reg {
         Reg::Add(r) => assert_eq!(report.added_diagonal, r),
@@ -345,14 +345,20 @@ fn gaussian_m_step_is_accurate_far_from_the_origin() {
             kind,
             d,
             means,
-            Gaussian::standard(kind, s, d)
-                .unwrap()
-                .covariances_raw()
-                .to_vec(),
+            Gaussian::standard(
+                kind,
+                Shape {
+                    n_states: s,
+                    dim: d,
+                },
+            )
+            .unwrap()
+            .covariances_raw()
+            .to_vec(),
         )
         .unwrap();
         let st = stats_for(&model, &data, &weights);
-        model.m_step(&st, &Regularization::none()).unwrap();
+        model.m_step(&st, &Regularisation::none()).unwrap();
         let (want_means, want_covs) = expected_m_step(kind, &xs, &weights, s, Reg::None);
         for i in 0..s {
             for k in 0..d {
@@ -380,7 +386,7 @@ fn inverse_wishart_full_m_step_formula_spelled_out() {
     let data = [0.0, 0.0, 2.0, 0.0, 0.0, 2.0, 2.0, 2.0];
     let mut g = Gaussian::full(2, vec![1.0, 1.0], vec![1.0, 0.0, 0.0, 1.0]).unwrap();
     let st = stats_for(&g, &data, &[1.0; 4]);
-    g.m_step(&st, &Regularization::inverse_wishart(0.5, 3.0).unwrap())
+    g.m_step(&st, &Regularisation::inverse_wishart(0.5, 3.0).unwrap())
         .unwrap();
     // mean (1, 1); scatter = [[4, 0], [0, 4]]; n = 4; denominator 4 + 3 + 2 + 1 = 10.
     assert_eq!(g.mean(0), &[1.0, 1.0]);
@@ -422,8 +428,8 @@ proptest! {
         // The M-steps from both agree as well (when the data allow one).
         if t > d + 1 {
             let (mut m1, mut m2) = (model.clone(), model.clone());
-            m1.m_step(&a, &Regularization::add_diagonal(1e-3).unwrap()).unwrap();
-            m2.m_step(&all, &Regularization::add_diagonal(1e-3).unwrap()).unwrap();
+            m1.m_step(&a, &Regularisation::add_diagonal(1e-3).unwrap()).unwrap();
+            m2.m_step(&all, &Regularisation::add_diagonal(1e-3).unwrap()).unwrap();
             for i in 0..s {
                 assert_matrix_close(&m1.covariance(i), &m2.covariance(i), 1e-10, "merged M-step");
             }
@@ -472,7 +478,7 @@ fn gaussian_stats_of_another_model_are_refused() {
         );
         let mut m = base.clone();
         assert!(
-            m.m_step(&other.new_stats(), &Regularization::none())
+            m.m_step(&other.new_stats(), &Regularisation::none())
                 .is_err(),
             "{other:?}"
         );
@@ -532,7 +538,7 @@ fn singular_covariance_is_refused_and_jitter_rescues_it() {
             };
             let st = stats_for(&model, &data, &weights);
             let mut m = model.clone();
-            match m.m_step(&st, &Regularization::none()) {
+            match m.m_step(&st, &Regularisation::none()) {
                 Err(EmissionError::NotPositiveDefinite {
                     state, component, ..
                 }) => {
@@ -549,7 +555,7 @@ fn singular_covariance_is_refused_and_jitter_rescues_it() {
                 "model changed by a failed M-step"
             );
 
-            let reg = Regularization::none().with_max_jitter(1e-3).unwrap();
+            let reg = Regularisation::none().with_max_jitter(1e-3).unwrap();
             let report = m.m_step(&st, &reg).unwrap_or_else(|e| {
                 panic!("{kind:?} seed {seed}: jitter should rescue the M-step: {e}")
             });
@@ -583,7 +589,7 @@ fn jitter_too_small_still_errors() {
         let (model, data, weights) = degenerate_setup(kind, 1, false);
         let st = stats_for(&model, &data, &weights);
         let mut m = model.clone();
-        let reg = Regularization::none().with_max_jitter(1e-30).unwrap();
+        let reg = Regularisation::none().with_max_jitter(1e-30).unwrap();
         assert!(matches!(
             m.m_step(&st, &reg),
             Err(EmissionError::NotPositiveDefinite { state: 1, .. })
@@ -599,7 +605,7 @@ fn add_diagonal_regularises_a_degenerate_state_without_events() {
         let st = stats_for(&model, &data, &weights);
         let mut m = model.clone();
         let report = m
-            .m_step(&st, &Regularization::add_diagonal(1e-4).unwrap())
+            .m_step(&st, &Regularisation::add_diagonal(1e-4).unwrap())
             .unwrap();
         assert!(report.events.is_empty(), "{kind:?} {:?}", report.events);
         assert_eq!(report.added_diagonal, 1e-4);
@@ -628,7 +634,7 @@ fn empty_state_is_kept_and_reported() {
         }
         let st = stats_for(&model, &data, &weights);
         let mut m = model.clone();
-        let report = m.m_step(&st, &Regularization::none()).unwrap();
+        let report = m.m_step(&st, &Regularisation::none()).unwrap();
         assert_eq!(
             report.events,
             vec![MStepEvent::KeptEmptyState {
@@ -656,7 +662,7 @@ fn empty_state_is_kept_and_reported() {
         assert_ne!(m.mean(0), model.mean(0));
         // A state below a custom minimum weight is kept too.
         let mut m2 = model.clone();
-        let reg = Regularization::none().with_min_weight(1e9).unwrap();
+        let reg = Regularisation::none().with_min_weight(1e9).unwrap();
         let report = m2.m_step(&st, &reg).unwrap();
         assert_eq!(report.events.len(), s);
         assert_eq!(model_snapshot(&m2), model_snapshot(&model));
@@ -674,7 +680,7 @@ fn iw_term(cov: &DMatrix<f64>, psi: f64, nu: f64) -> f64 {
 }
 
 /// Penalised objective `Σ_t Σ_i w_ti log N(x_t; μ_i, Σ_i) + log_prior`.
-fn penalised_objective(g: &Gaussian, data: &[f64], weights: &[f64], reg: &Regularization) -> f64 {
+fn penalised_objective(g: &Gaussian, data: &[f64], weights: &[f64], reg: &Regularisation) -> f64 {
     let ld = g.log_density(Frames::new(data, g.dim()).unwrap()).unwrap();
     ld.iter().zip(weights).map(|(l, w)| l * w).sum::<f64>() + g.log_prior(reg)
 }
@@ -705,7 +711,7 @@ proptest! {
         let kind = kind_of(k);
         let mut rng = rng(seed);
         let rg = random_gaussian(kind, s, d, &mut rng);
-        let reg = Regularization::inverse_wishart(psi, nu).unwrap();
+        let reg = Regularisation::inverse_wishart(psi, nu).unwrap();
         // Full/diagonal/spherical: one prior per state, on the (structured) matrix;
         // tied: one prior on the shared matrix.
         let want: f64 = if kind == CovarianceType::Tied {
@@ -715,8 +721,8 @@ proptest! {
         };
         let got = rg.model.log_prior(&reg);
         prop_assert!(close(got, want, 1e-9), "{:?}: {} vs {}", kind, got, want);
-        prop_assert_eq!(rg.model.log_prior(&Regularization::none()), 0.0);
-        prop_assert_eq!(rg.model.log_prior(&Regularization::add_diagonal(0.1).unwrap()), 0.0);
+        prop_assert_eq!(rg.model.log_prior(&Regularisation::none()), 0.0);
+        prop_assert_eq!(rg.model.log_prior(&Regularisation::add_diagonal(0.1).unwrap()), 0.0);
     }
 
     /// The inverse-Wishart M-step is the maximiser of log-likelihood + log_prior over
@@ -730,7 +736,7 @@ proptest! {
         let t = 12;
         let data = random_frames(t, d, 1.5, &mut rng);
         let weights = random_weights(t, s, &mut rng);
-        let reg = Regularization::inverse_wishart(psi, nu).unwrap();
+        let reg = Regularisation::inverse_wishart(psi, nu).unwrap();
         let st = stats_for(&g, &data, &weights);
         g.m_step(&st, &reg).unwrap();
         let best = penalised_objective(&g, &data, &weights, &reg);
@@ -771,10 +777,10 @@ fn random_mixture<R: Rng + ?Sized>(
     m: usize,
     d: usize,
     rng: &mut R,
-) -> (Mixture<Gaussian>, Vec<RandomGaussian>) {
+) -> (MixtureEmission<Gaussian>, Vec<RandomGaussian>) {
     let comps: Vec<RandomGaussian> = (0..s).map(|_| random_gaussian(kind, m, d, rng)).collect();
     let w = random_weight_rows(s, m, rng);
-    let mix = Mixture::new(w, comps.iter().map(|c| c.model.clone()).collect()).unwrap();
+    let mix = MixtureEmission::new(w, comps.iter().map(|c| c.model.clone()).collect()).unwrap();
     (mix, comps)
 }
 
@@ -837,7 +843,7 @@ proptest! {
                 Gaussian::new(kind, d, plain.means[i].iter().copied().collect(), raw).unwrap()
             })
             .collect();
-        let mut mix = Mixture::new(vec![1.0; s], comps).unwrap();
+        let mut mix = MixtureEmission::new(vec![1.0; s], comps).unwrap();
         let t = 3 * d + 6;
         let data = random_frames(t, d, 2.0, &mut rng);
         let frames = Frames::new(&data, d).unwrap();
@@ -851,7 +857,7 @@ proptest! {
         let weights = random_weights(t, s, &mut rng);
         let mut ms = mix.new_stats();
         mix.accumulate(frames, &weights, &mut ms).unwrap();
-        mix.m_step(&ms, &Regularization::none()).unwrap();
+        mix.m_step(&ms, &Regularisation::none()).unwrap();
         let xs = frame_rows(&data, d);
         let ref_kind = if kind == CovarianceType::Tied { CovarianceType::Full } else { kind };
         let (means, covs) = expected_m_step(ref_kind, &xs, &weights, s, Reg::None);
@@ -881,7 +887,7 @@ proptest! {
         mix.accumulate(frames.slice(17..t), &gamma[17 * s..], &mut st2).unwrap();
         st.merge(&st2).unwrap();
         let old_w = mix.weights().to_vec();
-        mix.m_step(&st, &Regularization::none()).unwrap();
+        mix.m_step(&st, &Regularisation::none()).unwrap();
         for i in 0..s {
             // Responsibilities r_t(m) = γ_t(i) w_m N_m(x_t) / Σ_m' w_m' N_m'(x_t).
             let resp: Vec<Vec<f64>> = xs
@@ -921,7 +927,7 @@ fn mixture_m_step_errors_name_state_and_component_and_leave_model_unchanged() {
     let mut st = mix.new_stats();
     mix.accumulate(frames, &gamma, &mut st).unwrap();
     let mut m = mix.clone();
-    match m.m_step(&st, &Regularization::none()) {
+    match m.m_step(&st, &Regularisation::none()) {
         Err(EmissionError::NotPositiveDefinite {
             state: 1,
             component: Some(_),
@@ -932,7 +938,7 @@ fn mixture_m_step_errors_name_state_and_component_and_leave_model_unchanged() {
     assert_eq!(model_snapshot(&m), model_snapshot(&mix));
     // State 0 received no weight: kept and reported; jitter rescues state 1.
     let report = m
-        .m_step(&st, &Regularization::none().with_max_jitter(1e-2).unwrap())
+        .m_step(&st, &Regularisation::none().with_max_jitter(1e-2).unwrap())
         .unwrap();
     assert!(report.events.contains(&MStepEvent::KeptEmptyState {
         state: 0,
@@ -977,7 +983,7 @@ fn mixture_stats_merge_and_mismatch() {
         .is_err());
     let mut m = mix.clone();
     assert!(m
-        .m_step(&other_m.new_stats(), &Regularization::none())
+        .m_step(&other_m.new_stats(), &Regularisation::none())
         .is_err());
 
     // Same shape (S, M) but a different component structure: the weights line up,
@@ -1027,7 +1033,7 @@ fn stats_about_different_reference_points_merge_exactly() {
         let mut all = a.new_stats();
         a.accumulate(Frames::new(&data, 3).unwrap(), &w, &mut all)
             .unwrap();
-        let reg = Regularization::none();
+        let reg = Regularisation::none();
         let (mut m1, mut m2) = (a.clone(), a.clone());
         m1.m_step(&sa, &reg).unwrap();
         m2.m_step(&all, &reg).unwrap();
@@ -1092,14 +1098,14 @@ proptest! {
         let symbols: Vec<f64> = (0..t).map(|_| rng.random_range(0..k) as f64).collect();
         let cat = |rng: &mut rand_chacha::ChaCha8Rng, rows| phasekit_emission::Categorical::new(k, random_weight_rows(rows, k, rng)).unwrap();
         check_merge(&cat(&mut rng, s), &symbols, &weights, cut);
-        let mix_cat = Mixture::new(random_weight_rows(s, 2, &mut rng), (0..s).map(|_| cat(&mut rng, 2)).collect()).unwrap();
+        let mix_cat = MixtureEmission::new(random_weight_rows(s, 2, &mut rng), (0..s).map(|_| cat(&mut rng, 2)).collect()).unwrap();
         check_merge(&mix_cat, &symbols, &weights, cut);
         let counts: Vec<f64> = (0..t * d).map(|_| rng.random_range(0..9u32) as f64).collect();
         let pois = |rng: &mut rand_chacha::ChaCha8Rng, rows: usize| {
             phasekit_emission::Poisson::new(d, (0..rows * d).map(|_| rng.random_range(0.1..8.0)).collect()).unwrap()
         };
         check_merge(&pois(&mut rng, s), &counts, &weights, cut);
-        let mix_pois = Mixture::new(random_weight_rows(s, 3, &mut rng), (0..s).map(|_| pois(&mut rng, 3)).collect()).unwrap();
+        let mix_pois = MixtureEmission::new(random_weight_rows(s, 3, &mut rng), (0..s).map(|_| pois(&mut rng, 3)).collect()).unwrap();
         check_merge(&mix_pois, &counts, &weights, cut);
     }
 
@@ -1108,7 +1114,7 @@ proptest! {
         let mut rng = rng(seed);
         let rates: Vec<Vec<f64>> = (0..s).map(|_| (0..m * d).map(|_| rng.random_range(0.1..8.0)).collect()).collect();
         let w = random_weight_rows(s, m, &mut rng);
-        let mix = Mixture::new(w.clone(), rates.iter().map(|r| phasekit_emission::Poisson::new(d, r.clone()).unwrap()).collect()).unwrap();
+        let mix = MixtureEmission::new(w.clone(), rates.iter().map(|r| phasekit_emission::Poisson::new(d, r.clone()).unwrap()).collect()).unwrap();
         let counts: Vec<f64> = (0..5 * d).map(|_| rng.random_range(0..12u32) as f64).collect();
         let ld = mix.log_density(Frames::new(&counts, d).unwrap()).unwrap();
         for (tt, x) in counts.chunks_exact(d).enumerate() {
@@ -1218,7 +1224,7 @@ where
         };
         let mut m = e.clone();
         assert!(
-            m.m_step(&bad, &Regularization::none()).is_err(),
+            m.m_step(&bad, &Regularisation::none()).is_err(),
             "M-step accepted stats truncated at {path:?}"
         );
         assert_eq!(model_snapshot(&m), model_snapshot(e));
@@ -1267,9 +1273,16 @@ fn m_step_from_a_far_template_is_accurate() {
     let data: Vec<f64> = (0..600).map(|_| 1e6 + 1e-3 * normal(&mut rng)).collect();
     let xs = frame_rows(&data, 3);
     for kind in KINDS {
-        let mut g = Gaussian::standard(kind, 1, 3).unwrap();
+        let mut g = Gaussian::standard(
+            kind,
+            Shape {
+                n_states: 1,
+                dim: 3,
+            },
+        )
+        .unwrap();
         let st = stats_for(&g, &data, &[1.0; 200]);
-        g.m_step(&st, &Regularization::none()).unwrap();
+        g.m_step(&st, &Regularisation::none()).unwrap();
         let (_, want) = expected_m_step(kind, &xs, &[1.0; 200], 1, Reg::None);
         let rel = (g.covariance(0) - &want[0]).amax() / want[0].amax();
         assert!(rel <= 1e-6, "{kind:?}: relative error {rel:e}");

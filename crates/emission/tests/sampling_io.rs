@@ -7,8 +7,8 @@ use common::*;
 use nalgebra::{DMatrix, DVector};
 use phasekit_emission::kmeans::{kmeans, lloyd, Seeding};
 use phasekit_emission::{
-    Categorical, CovarianceType, Emission, EmissionError, Frames, Gaussian, Mixture, Poisson,
-    SequenceSet,
+    Categorical, CovarianceType, Emission, EmissionError, Frames, Gaussian, MixtureEmission,
+    Poisson, SequenceSet, Shape,
 };
 use proptest::prelude::*;
 use rand::Rng;
@@ -138,7 +138,8 @@ fn mixture_samples_have_the_mixture_mean_and_covariance() {
         .map(|_| random_gaussian(CovarianceType::Full, 3, 2, &mut r))
         .collect();
     let w = vec![0.2, 0.5, 0.3, 0.6, 0.0, 0.4];
-    let mix = Mixture::new(w.clone(), comps.iter().map(|c| c.model.clone()).collect()).unwrap();
+    let mix =
+        MixtureEmission::new(w.clone(), comps.iter().map(|c| c.model.clone()).collect()).unwrap();
     for state in 0..2 {
         let c = &comps[state];
         let ws = &w[state * 3..(state + 1) * 3];
@@ -213,7 +214,7 @@ proptest! {
             roundtrip(&g, frames);
             let comps: Vec<Gaussian> = (0..s).map(|_| random_gaussian(kind, 2, d, &mut r).model).collect();
             let w: Vec<f64> = (0..s).flat_map(|_| { let a = r.random_range(0.05..0.95); [a, 1.0 - a] }).collect();
-            roundtrip(&Mixture::new(w, comps).unwrap(), frames);
+            roundtrip(&MixtureEmission::new(w, comps).unwrap(), frames);
         }
         let k = d + 2;
         let mut probs = Vec::new();
@@ -332,35 +333,62 @@ fn serde_refuses_invalid_parameters() {
     refused::<Poisson>(json!({"dim": 2, "rates": [1.0, 3.0, 2.0]}), "ragged rates");
     refused::<Poisson>(json!({"dim": 0, "rates": []}), "zero dimension");
 
-    let comp =
-        serde_json::to_value(Gaussian::standard(CovarianceType::Diagonal, 2, 1).unwrap()).unwrap();
-    let comp3 =
-        serde_json::to_value(Gaussian::standard(CovarianceType::Diagonal, 3, 1).unwrap()).unwrap();
-    let comp_d2 =
-        serde_json::to_value(Gaussian::standard(CovarianceType::Diagonal, 2, 2).unwrap()).unwrap();
-    serde_json::from_value::<Mixture<Gaussian>>(
+    let comp = serde_json::to_value(
+        Gaussian::standard(
+            CovarianceType::Diagonal,
+            Shape {
+                n_states: 2,
+                dim: 1,
+            },
+        )
+        .unwrap(),
+    )
+    .unwrap();
+    let comp3 = serde_json::to_value(
+        Gaussian::standard(
+            CovarianceType::Diagonal,
+            Shape {
+                n_states: 3,
+                dim: 1,
+            },
+        )
+        .unwrap(),
+    )
+    .unwrap();
+    let comp_d2 = serde_json::to_value(
+        Gaussian::standard(
+            CovarianceType::Diagonal,
+            Shape {
+                n_states: 2,
+                dim: 2,
+            },
+        )
+        .unwrap(),
+    )
+    .unwrap();
+    serde_json::from_value::<MixtureEmission<Gaussian>>(
         json!({"weights": [0.5, 0.5], "components": [comp]}),
     )
     .unwrap();
-    refused::<Mixture<Gaussian>>(
+    refused::<MixtureEmission<Gaussian>>(
         json!({"weights": [0.5, 0.6], "components": [comp]}),
         "weights do not sum to 1",
     );
-    refused::<Mixture<Gaussian>>(
+    refused::<MixtureEmission<Gaussian>>(
         json!({"weights": [0.5, 0.5], "components": []}),
         "no states",
     );
-    refused::<Mixture<Gaussian>>(
+    refused::<MixtureEmission<Gaussian>>(
         json!({"weights": [0.5, 0.5, 0.2, 0.3, 0.5], "components": [comp, comp3]}),
         "different component counts",
     );
-    refused::<Mixture<Gaussian>>(
+    refused::<MixtureEmission<Gaussian>>(
         json!({"weights": [0.5, 0.5, 0.5, 0.5], "components": [comp, comp_d2]}),
         "different component dimensions",
     );
     let mut bad_comp = comp.clone();
     bad_comp["covariances"] = json!([1.0, -1.0]);
-    refused::<Mixture<Gaussian>>(
+    refused::<MixtureEmission<Gaussian>>(
         json!({"weights": [0.5, 0.5], "components": [bad_comp]}),
         "invalid component",
     );
@@ -384,15 +412,29 @@ fn constructors_refuse_invalid_parameters() {
     assert!(Gaussian::spherical(2, vec![f64::NAN, 0.0], vec![1.0]).is_err());
     assert!(Gaussian::spherical(2, vec![0.0, 0.0], vec![f64::INFINITY]).is_err());
     assert!(Gaussian::tied(2, vec![], vec![1.0, 0.0, 0.0, 1.0]).is_err());
-    assert!(Gaussian::standard(CovarianceType::Full, 0, 2).is_err());
-    assert!(Gaussian::standard(CovarianceType::Full, 2, 0).is_err());
+    assert!(Gaussian::standard(
+        CovarianceType::Full,
+        Shape {
+            n_states: 0,
+            dim: 2
+        }
+    )
+    .is_err());
+    assert!(Gaussian::standard(
+        CovarianceType::Full,
+        Shape {
+            n_states: 2,
+            dim: 0
+        }
+    )
+    .is_err());
     assert!(Categorical::new(2, vec![0.5, f64::NAN]).is_err());
-    assert!(Mixture::<Gaussian>::new(vec![], vec![]).is_err());
-    assert!(phasekit_emission::Regularization::add_diagonal(-1.0).is_err());
-    assert!(phasekit_emission::Regularization::add_diagonal(f64::NAN).is_err());
-    assert!(phasekit_emission::Regularization::inverse_wishart(0.0, 1.0).is_err());
-    assert!(phasekit_emission::Regularization::inverse_wishart(1.0, -1.0).is_err());
-    assert!(phasekit_emission::Regularization::none()
+    assert!(MixtureEmission::<Gaussian>::new(vec![], vec![]).is_err());
+    assert!(phasekit_emission::Regularisation::add_diagonal(-1.0).is_err());
+    assert!(phasekit_emission::Regularisation::add_diagonal(f64::NAN).is_err());
+    assert!(phasekit_emission::Regularisation::inverse_wishart(0.0, 1.0).is_err());
+    assert!(phasekit_emission::Regularisation::inverse_wishart(1.0, -1.0).is_err());
+    assert!(phasekit_emission::Regularisation::none()
         .with_max_jitter(f64::INFINITY)
         .is_err());
 }

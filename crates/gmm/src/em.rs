@@ -7,10 +7,10 @@
 //! M-step: `π_k = N_k / N` and the components' own M-step with the regularisation.
 
 use crate::error::{GmmError, Result};
-use crate::model::{normalise_log_row, MixtureModel};
+use crate::model::{normalise_log_row, Gmm};
 use phasekit_emission::kmeans::{kmeans, Seeding};
 use phasekit_emission::{
-    fit_weighted, Emission, Frames, MStepReport, Regularization, SufficientStatistics,
+    fit_weighted, Emission, Frames, MStepReport, Regularisation, SufficientStatistics,
 };
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -66,7 +66,7 @@ fn responsibilities_in_place(row: &mut [f64]) -> f64 {
     m + total.ln()
 }
 
-impl<E: Emission> MixtureModel<E> {
+impl<E: Emission> Gmm<E> {
     fn accumulate_chunk(&self, frames: Frames<'_>) -> Result<MixtureStatistics<E::Stats>> {
         let k = self.n_components();
         let mut r = vec![0.0; frames.len() * k];
@@ -121,7 +121,7 @@ impl<E: Emission> MixtureModel<E> {
     pub fn maximise(
         &self,
         stats: &MixtureStatistics<E::Stats>,
-        reg: &Regularization,
+        reg: &Regularisation,
     ) -> Result<(Self, MStepReport)> {
         let a = reg.pseudo_count();
         let k = self.n_components();
@@ -133,11 +133,11 @@ impl<E: Emission> MixtureModel<E> {
             .collect();
         let mut components = self.components.clone();
         let report = components.m_step(&stats.components, reg)?;
-        Ok((MixtureModel::new(weights, components)?, report))
+        Ok((Gmm::new(weights, components)?, report))
     }
 
     /// `log prior` of the weights (Dirichlet pseudo-counts) and the components.
-    fn log_prior(&self, reg: &Regularization) -> f64 {
+    fn log_prior(&self, reg: &Regularisation) -> f64 {
         let a = reg.pseudo_count();
         let w = if a > 0.0 {
             a * self.log_weights.iter().sum::<f64>()
@@ -151,14 +151,14 @@ impl<E: Emission> MixtureModel<E> {
 /// Checked EM settings; build with [`Em::builder`].
 ///
 /// Deserialisation runs [`EmBuilder::build`]'s checks (and
-/// [`Regularization`]'s), so settings read from a file are refused with the
+/// [`Regularisation`]'s), so settings read from a file are refused with the
 /// same message as in code (e.g. `restarts = 0`, a NaN tolerance).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(try_from = "EmRaw")]
 pub struct Em {
     max_iter: usize,
     tol: f64,
-    regularization: Regularization,
+    regularisation: Regularisation,
     init: GmmInit,
     restarts: usize,
     seed: u64,
@@ -170,7 +170,7 @@ pub struct Em {
 struct EmRaw {
     max_iter: usize,
     tol: f64,
-    regularization: Regularization,
+    regularisation: Regularisation,
     init: GmmInit,
     restarts: usize,
     seed: u64,
@@ -183,7 +183,7 @@ impl TryFrom<EmRaw> for Em {
         EmBuilder(Em {
             max_iter: r.max_iter,
             tol: r.tol,
-            regularization: r.regularization,
+            regularisation: r.regularisation,
             init: r.init,
             restarts: r.restarts,
             seed: r.seed,
@@ -200,7 +200,7 @@ impl Default for Em {
         Em {
             max_iter: 100,
             tol: 1e-3,
-            regularization: Regularization::default(),
+            regularisation: Regularisation::default(),
             init: GmmInit::KMeans,
             restarts: 1,
             seed: 0,
@@ -230,8 +230,8 @@ impl EmBuilder {
         self
     }
     /// Regularisation of every M-step and of the initialisation.
-    pub fn regularization(mut self, r: Regularization) -> Self {
-        self.0.regularization = r;
+    pub fn regularisation(mut self, r: Regularisation) -> Self {
+        self.0.regularisation = r;
         self
     }
     /// Initialisation.
@@ -299,9 +299,9 @@ pub struct GmmFitReport {
 
 /// A fitted mixture and its report.
 #[derive(Debug, Clone)]
-pub struct FittedMixture<E: Emission> {
+pub struct GmmFit<E: Emission> {
     /// The model whose log-likelihood was evaluated last.
-    pub model: MixtureModel<E>,
+    pub model: Gmm<E>,
     /// What the fit did.
     pub report: GmmFitReport,
 }
@@ -319,7 +319,7 @@ impl Em {
         frames: Frames<'_>,
         init: GmmInit,
         rng: &mut R,
-    ) -> Result<MixtureModel<E>> {
+    ) -> Result<Gmm<E>> {
         let k = template.n_states();
         let n = frames.len();
         if n < k {
@@ -349,9 +349,9 @@ impl Em {
                 *c += v;
             }
         }
-        let (components, _) = fit_weighted(template, &[(frames, &r)], &self.regularization)?;
+        let (components, _) = fit_weighted(template, &[(frames, &r)], &self.regularisation)?;
         let weights = counts.iter().map(|c| c / n as f64).collect();
-        MixtureModel::new(weights, components)
+        Gmm::new(weights, components)
     }
 
     fn in_pool<T: Send>(&self, f: impl FnOnce() -> Result<T> + Send) -> Result<T> {
@@ -367,13 +367,13 @@ impl Em {
 
     /// Fits a mixture with the structure of `template` (its `K` states become
     /// the components; its parameters are ignored).
-    pub fn fit<E: Emission>(&self, template: &E, frames: Frames<'_>) -> Result<FittedMixture<E>> {
+    pub fn fit<E: Emission>(&self, template: &E, frames: Frames<'_>) -> Result<GmmFit<E>> {
         let clock = Instant::now();
         if frames.is_empty() {
             return Err(GmmError::TooFewFrames("no frames given".into()));
         }
         template.check_frames(frames)?;
-        let mut best: Option<FittedMixture<E>> = None;
+        let mut best: Option<GmmFit<E>> = None;
         let mut finals = Vec::with_capacity(self.restarts);
         let mut first_error = None;
         for r in 0..self.restarts {
@@ -410,11 +410,7 @@ impl Em {
     }
 
     /// Runs EM from the given mixture.
-    pub fn fit_from<E: Emission>(
-        &self,
-        initial: MixtureModel<E>,
-        frames: Frames<'_>,
-    ) -> Result<FittedMixture<E>> {
+    pub fn fit_from<E: Emission>(&self, initial: Gmm<E>, frames: Frames<'_>) -> Result<GmmFit<E>> {
         let clock = Instant::now();
         initial.check_frames(frames)?;
         let mut fitted = self.run(initial, frames)?;
@@ -423,11 +419,7 @@ impl Em {
         Ok(fitted)
     }
 
-    fn run<E: Emission>(
-        &self,
-        mut model: MixtureModel<E>,
-        frames: Frames<'_>,
-    ) -> Result<FittedMixture<E>> {
+    fn run<E: Emission>(&self, mut model: Gmm<E>, frames: Frames<'_>) -> Result<GmmFit<E>> {
         let n = frames.len() as f64;
         self.in_pool(|| {
             let mut log_likelihood: Vec<f64> = Vec::new();
@@ -437,7 +429,7 @@ impl Em {
             loop {
                 let stats = model.expected_statistics(frames)?;
                 let ll = stats.log_likelihood;
-                let obj = ll + model.log_prior(&self.regularization);
+                let obj = ll + model.log_prior(&self.regularisation);
                 // Test the gain of what EM increases, `log p(X) + log prior`;
                 // without a prior `log_prior` is exactly 0 and this is the
                 // log-likelihood's gain, bit for bit.
@@ -449,11 +441,11 @@ impl Em {
                 if converged || m_steps.len() >= self.max_iter {
                     break;
                 }
-                let (next, report) = model.maximise(&stats, &self.regularization)?;
+                let (next, report) = model.maximise(&stats, &self.regularisation)?;
                 model = next;
                 m_steps.push(report);
             }
-            Ok(FittedMixture {
+            Ok(GmmFit {
                 model,
                 report: GmmFitReport {
                     iterations: m_steps.len(),

@@ -1,6 +1,6 @@
 //! Finite mixture models fitted by EM, generic over the emission trait.
 //!
-//! * [`MixtureModel`] (and [`Gmm`] for Gaussian components): `p(x) = Σ_k π_k c_k(x)`,
+//! * [`Gmm`] (and [`Gmm`] for Gaussian components): `p(x) = Σ_k π_k c_k(x)`,
 //!   with responsibilities, hard labels, per-frame log-likelihood, sampling, AIC/BIC;
 //! * [`Em`]: EM with k-means++ or random initialisation, restarts, tolerance,
 //!   regularisation reported as in the emission crate, per-iteration history and a
@@ -17,9 +17,9 @@ pub mod error;
 pub mod model;
 pub mod selection;
 
-pub use em::{Em, EmBuilder, FittedMixture, GmmFitReport, GmmInit, MixtureStatistics};
+pub use em::{Em, EmBuilder, GmmFit, GmmFitReport, GmmInit, MixtureStatistics};
 pub use error::{GmmError, Result};
-pub use model::{Gmm, MixtureModel, MODEL_FORMAT_VERSION};
+pub use model::{Gmm, MODEL_FORMAT_VERSION};
 pub use selection::{
     anderson_darling_normal, gmeans, select_hmm_states_bic, select_hmm_states_gmeans,
     select_mixture_bic, GMeans, GMeansBuilder, GMeansResult, GMeansStates, Selection,

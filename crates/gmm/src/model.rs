@@ -18,7 +18,7 @@ struct MixtureParams<E> {
 
 /// A finite mixture whose components are the `K` states of an [`Emission`].
 ///
-/// `MixtureModel<Gaussian>` ([`Gmm`]) is a Gaussian mixture with full,
+/// `Gmm` (that is, `Gmm<Gaussian>`) is a Gaussian mixture with full,
 /// diagonal, spherical or tied covariances; any other emission (Poisson,
 /// categorical, …) gives the corresponding mixture with no new code.
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -27,16 +27,13 @@ struct MixtureParams<E> {
     into = "MixtureParams<E>",
     bound = "E: Emission + Serialize + for<'a> Deserialize<'a>"
 )]
-pub struct MixtureModel<E: Emission> {
+pub struct Gmm<E: Emission = Gaussian> {
     pub(crate) weights: Vec<f64>,
     pub(crate) log_weights: Vec<f64>,
     pub(crate) components: E,
 }
 
-/// A Gaussian mixture model.
-pub type Gmm = MixtureModel<Gaussian>;
-
-impl<E: Emission> TryFrom<MixtureParams<E>> for MixtureModel<E> {
+impl<E: Emission> TryFrom<MixtureParams<E>> for Gmm<E> {
     type Error = GmmError;
     fn try_from(p: MixtureParams<E>) -> Result<Self> {
         if p.format_version != MODEL_FORMAT_VERSION {
@@ -48,12 +45,12 @@ impl<E: Emission> TryFrom<MixtureParams<E>> for MixtureModel<E> {
                 ),
             });
         }
-        MixtureModel::new(p.weights, p.components)
+        Gmm::new(p.weights, p.components)
     }
 }
 
-impl<E: Emission> From<MixtureModel<E>> for MixtureParams<E> {
-    fn from(m: MixtureModel<E>) -> Self {
+impl<E: Emission> From<Gmm<E>> for MixtureParams<E> {
+    fn from(m: Gmm<E>) -> Self {
         MixtureParams {
             format_version: MODEL_FORMAT_VERSION,
             weights: m.weights,
@@ -70,7 +67,7 @@ fn ln0(p: f64) -> f64 {
     }
 }
 
-impl<E: Emission> MixtureModel<E> {
+impl<E: Emission> Gmm<E> {
     /// Builds a mixture; `weights` has one entry per state of `components`,
     /// finite, non-negative, summing to 1 (within `1e-8`, then renormalised).
     ///
@@ -104,7 +101,7 @@ impl<E: Emission> MixtureModel<E> {
             weights.iter().map(|w| w / total).collect()
         };
         let log_weights = weights.iter().map(|w| ln0(*w)).collect();
-        Ok(MixtureModel {
+        Ok(Gmm {
             weights,
             log_weights,
             components,
@@ -228,7 +225,7 @@ impl<E: Emission> MixtureModel<E> {
 
     /// The mixture of the components' marginals on `dims` (same weights).
     pub fn marginal(&self, dims: &[usize]) -> Result<Self> {
-        MixtureModel::new(self.weights.clone(), self.components.marginal(dims)?)
+        Gmm::new(self.weights.clone(), self.components.marginal(dims)?)
     }
 }
 

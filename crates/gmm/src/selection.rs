@@ -5,7 +5,7 @@ use crate::em::Em;
 use crate::error::{GmmError, Result};
 use phasekit_emission::kmeans::lloyd;
 use phasekit_emission::{Emission, Frames, SequenceSet};
-use phasekit_hmm::{BaumWelch, Fitted};
+use phasekit_hmm::{BaumWelch, HmmFit};
 use serde::{Deserialize, Serialize};
 use std::ops::RangeInclusive;
 
@@ -89,7 +89,7 @@ pub struct GMeansStates<E: Emission> {
     /// The G-means clustering of the frames of all sequences.
     pub clusters: GMeansResult,
     /// The HMM with `K` states fitted by the given Baum-Welch settings.
-    pub fitted: Fitted<E>,
+    pub fitted: HmmFit<E>,
 }
 
 /// The number of HMM states by G-means (Hamerly & Elkan 2003), as the seed

@@ -21,13 +21,13 @@
 
 use nalgebra::DMatrix;
 use phasekit_emission::{
-    CovarianceType, EmissionError, Frames, Gaussian, Regularization, SequenceSet,
+    CovarianceType, EmissionError, Frames, Gaussian, Regularisation, SequenceSet, Shape,
 };
 use phasekit_gmm::{
     anderson_darling_normal, gmeans, select_hmm_states_bic, select_mixture_bic, Em, GMeans, Gmm,
-    GmmError, GmmInit, MixtureModel,
+    GmmError, GmmInit,
 };
-use phasekit_hmm::{BaumWelch, Hmm, Init};
+use phasekit_hmm::{BaumWelch, Hmm, HmmInit};
 use proptest::prelude::*;
 use proptest::test_runner::RngSeed;
 use rand::{Rng, SeedableRng};
@@ -178,12 +178,12 @@ proptest! {
         let em = Em::builder()
             .max_iter(30)
             .tol(f64::NEG_INFINITY)
-            .regularization(Regularization::none())
+            .regularisation(Regularisation::none())
             .init(if random_init { GmmInit::Random } else { GmmInit::KMeans })
             .seed(seed)
             .build()
             .unwrap();
-        let template = Gaussian::standard(KINDS[kind], k, d).unwrap();
+        let template = Gaussian::standard(KINDS[kind], Shape { n_states: k, dim: d }).unwrap();
         let fitted = em.fit(&template, frames).map_err(|e| TestCaseError::fail(e.to_string()))?;
         let ll = &fitted.report.log_likelihood;
         prop_assert_eq!(ll.len(), 31);
@@ -211,19 +211,19 @@ proptest! {
         // Few frames per component, so that the prior matters.
         let (data, _) = truth.sample(15 * k * d, &mut r);
         let frames = Frames::new(&data, d).unwrap();
-        let reg = Regularization::inverse_wishart(scale, d as f64 - 1.0 + extra_dof)
+        let reg = Regularisation::inverse_wishart(scale, d as f64 - 1.0 + extra_dof)
             .unwrap()
             .with_pseudo_count(pseudo_count)
             .unwrap();
         let em = Em::builder()
             .max_iter(30)
             .tol(f64::NEG_INFINITY)
-            .regularization(reg)
+            .regularisation(reg)
             .init(GmmInit::Random)
             .seed(seed)
             .build()
             .unwrap();
-        let template = Gaussian::standard(KINDS[kind], k, d).unwrap();
+        let template = Gaussian::standard(KINDS[kind], Shape { n_states: k, dim: d }).unwrap();
         let fitted = em.fit(&template, frames).map_err(|e| TestCaseError::fail(e.to_string()))?;
         let obj = &fitted.report.objective;
         let ll = &fitted.report.log_likelihood;
@@ -300,7 +300,14 @@ fn recovers_a_known_three_component_mixture() {
     let em = Em::builder().restarts(3).seed(11).build().unwrap();
     let fitted = em
         .fit(
-            &Gaussian::standard(CovarianceType::Full, 3, 2).unwrap(),
+            &Gaussian::standard(
+                CovarianceType::Full,
+                Shape {
+                    n_states: 3,
+                    dim: 2,
+                },
+            )
+            .unwrap(),
             frames,
         )
         .unwrap();
@@ -375,7 +382,14 @@ fn same_seed_same_fit_other_seed_other_fit() {
     let truth = three_component_truth();
     let (data, _) = truth.sample(600, &mut rng(7));
     let frames = Frames::new(&data, 2).unwrap();
-    let template = Gaussian::standard(CovarianceType::Full, 3, 2).unwrap();
+    let template = Gaussian::standard(
+        CovarianceType::Full,
+        Shape {
+            n_states: 3,
+            dim: 2,
+        },
+    )
+    .unwrap();
     for init in [GmmInit::Random, GmmInit::KMeans] {
         let em = |seed| {
             Em::builder()
@@ -464,7 +478,14 @@ fn e_step_is_bit_identical_for_any_thread_count() {
 fn whole_fit_is_bit_identical_for_any_thread_count() {
     let (data, _) = five_chunks();
     let frames = Frames::new(&data, 3).unwrap();
-    let template = Gaussian::standard(CovarianceType::Full, 4, 3).unwrap();
+    let template = Gaussian::standard(
+        CovarianceType::Full,
+        Shape {
+            n_states: 4,
+            dim: 3,
+        },
+    )
+    .unwrap();
     let fit = |threads| {
         Em::builder()
             .threads(threads)
@@ -517,7 +538,15 @@ fn bic_picks_the_true_number_of_components() {
     let em = Em::builder().restarts(3).seed(1).build().unwrap();
     let sel = select_mixture_bic(
         &em,
-        |k| Gaussian::standard(CovarianceType::Full, k, 2),
+        |k| {
+            Gaussian::standard(
+                CovarianceType::Full,
+                Shape {
+                    n_states: k,
+                    dim: 2,
+                },
+            )
+        },
         frames,
         1..=6,
     )
@@ -531,7 +560,14 @@ fn bic_picks_the_true_number_of_components() {
     // The score is the BIC: −2 log L + p ln N of the model fitted with the same settings.
     let fitted = em
         .fit(
-            &Gaussian::standard(CovarianceType::Full, 4, 2).unwrap(),
+            &Gaussian::standard(
+                CovarianceType::Full,
+                Shape {
+                    n_states: 4,
+                    dim: 2,
+                },
+            )
+            .unwrap(),
             frames,
         )
         .unwrap();
@@ -607,14 +643,22 @@ fn bic_picks_the_true_number_of_hmm_states() {
     let seqs: Vec<Vec<f64>> = (0..8).map(|_| hmm.sample(150, &mut r).unwrap().0).collect();
     let data = SequenceSet::new(&seqs, 2).unwrap();
     let bw = BaumWelch::builder()
-        .init(Init::KMeans)
+        .init(HmmInit::KMeans)
         .restarts(2)
         .seed(0)
         .build()
         .unwrap();
     let sel = select_hmm_states_bic(
         &bw,
-        |s| Gaussian::standard(CovarianceType::Full, s, 2),
+        |s| {
+            Gaussian::standard(
+                CovarianceType::Full,
+                Shape {
+                    n_states: s,
+                    dim: 2,
+                },
+            )
+        },
         &data,
         1..=5,
     )
@@ -792,7 +836,14 @@ fn small_gmm() -> Gmm {
 fn fewer_frames_than_components_is_an_error() {
     let data = [0.0, 1.0, 2.0, 3.0, 4.0, 5.0];
     let frames = Frames::new(&data, 2).unwrap();
-    let template = Gaussian::standard(CovarianceType::Full, 5, 2).unwrap();
+    let template = Gaussian::standard(
+        CovarianceType::Full,
+        Shape {
+            n_states: 5,
+            dim: 2,
+        },
+    )
+    .unwrap();
     for init in [GmmInit::KMeans, GmmInit::Random] {
         let err = Em::builder()
             .init(init)
@@ -840,7 +891,7 @@ fn invalid_weights_are_refused() {
         (vec![1.0], "1 weights for 2 components"),
         (vec![0.2, 0.3, 0.5], "3 weights for 2 components"),
     ] {
-        let err = MixtureModel::new(weights.clone(), comps()).unwrap_err();
+        let err = Gmm::new(weights.clone(), comps()).unwrap_err();
         assert!(
             matches!(
                 &err,
@@ -854,7 +905,7 @@ fn invalid_weights_are_refused() {
         assert!(err.to_string().contains(needle), "{weights:?}: {err}");
     }
     // Within 1e-8 of 1 is accepted and renormalised.
-    let m = MixtureModel::new(vec![0.4 + 5e-9, 0.6], comps()).unwrap();
+    let m = Gmm::new(vec![0.4 + 5e-9, 0.6], comps()).unwrap();
     assert!((m.weights().iter().sum::<f64>() - 1.0).abs() < 1e-15);
 }
 
@@ -938,7 +989,15 @@ fn invalid_settings_are_refused() {
     let em = Em::default();
     let sel = select_mixture_bic(
         &em,
-        |k| Gaussian::standard(CovarianceType::Diagonal, k, 1),
+        |k| {
+            Gaussian::standard(
+                CovarianceType::Diagonal,
+                Shape {
+                    n_states: k,
+                    dim: 1,
+                },
+            )
+        },
         frames,
         [0, 1, 9],
     )
@@ -947,7 +1006,13 @@ fn invalid_settings_are_refused() {
     assert_eq!(sel.failures.iter().map(|f| f.0).collect::<Vec<_>>(), [0, 9]);
     assert!(select_mixture_bic(
         &em,
-        |k| Gaussian::standard(CovarianceType::Diagonal, k, 1),
+        |k| Gaussian::standard(
+            CovarianceType::Diagonal,
+            Shape {
+                n_states: k,
+                dim: 1
+            }
+        ),
         frames,
         [0, 9]
     )
@@ -969,7 +1034,17 @@ fn serde_round_trip_and_format_version() {
             .seed(4)
             .build()
             .unwrap()
-            .fit(&Gaussian::standard(kind, 3, 3).unwrap(), frames)
+            .fit(
+                &Gaussian::standard(
+                    kind,
+                    Shape {
+                        n_states: 3,
+                        dim: 3,
+                    },
+                )
+                .unwrap(),
+                frames,
+            )
             .unwrap()
             .model;
         let json = serde_json::to_string(&model).unwrap();

@@ -5,8 +5,10 @@
 //!
 //! Every random draw comes from a seeded `ChaCha8Rng`.
 
-use phasekit_emission::{CovarianceType, Emission, Frames, Gaussian, Poisson, Regularization};
-use phasekit_gmm::{Em, FittedMixture, GmmInit, MixtureModel};
+use phasekit_emission::{
+    CovarianceType, Emission, Frames, Gaussian, Poisson, Regularisation, Shape,
+};
+use phasekit_gmm::{Em, Gmm, GmmFit, GmmInit};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
@@ -29,7 +31,7 @@ fn blobs(n: usize, seed: u64) -> Vec<f64> {
         .collect()
 }
 
-fn final_objective<E: Emission>(f: &FittedMixture<E>) -> f64 {
+fn final_objective<E: Emission>(f: &GmmFit<E>) -> f64 {
     *f.report.objective.last().unwrap()
 }
 
@@ -37,17 +39,24 @@ fn final_objective<E: Emission>(f: &FittedMixture<E>) -> f64 {
 fn restarts_return_the_run_with_the_best_final_objective() {
     let data = blobs(150, 1);
     let frames = Frames::new(&data, 2).unwrap();
-    let template = Gaussian::standard(CovarianceType::Full, 3, 2).unwrap();
+    let template = Gaussian::standard(
+        CovarianceType::Full,
+        Shape {
+            n_states: 3,
+            dim: 2,
+        },
+    )
+    .unwrap();
     // A prior on the covariances and the weights, so that the objective
     // differs from log p(X); few iterations, so that the runs end apart.
-    let reg = Regularization::inverse_wishart(0.5, 3.0)
+    let reg = Regularisation::inverse_wishart(0.5, 3.0)
         .unwrap()
         .with_pseudo_count(1.0)
         .unwrap();
     let settings = |seed: u64, restarts: usize| {
         Em::builder()
             .init(GmmInit::Random)
-            .regularization(reg)
+            .regularisation(reg)
             .max_iter(3)
             .tol(f64::NEG_INFINITY)
             .restarts(restarts)
@@ -101,14 +110,21 @@ fn stop_at(series: &[f64], n: f64, tol: f64, max_iter: usize) -> usize {
 fn convergence_is_tested_on_the_penalised_objective_under_a_prior() {
     let data = blobs(90, 2);
     let frames = Frames::new(&data, 2).unwrap();
-    let template = Gaussian::standard(CovarianceType::Full, 3, 2).unwrap();
-    let initial: MixtureModel<Gaussian> = Em::default()
+    let template = Gaussian::standard(
+        CovarianceType::Full,
+        Shape {
+            n_states: 3,
+            dim: 2,
+        },
+    )
+    .unwrap();
+    let initial: Gmm<Gaussian> = Em::default()
         .initialise(&template, frames, GmmInit::Random, &mut rng(3))
         .unwrap();
     let max_iter = 60;
-    let run = |reg: Regularization, tol: f64| {
+    let run = |reg: Regularisation, tol: f64| {
         Em::builder()
-            .regularization(reg)
+            .regularisation(reg)
             .max_iter(max_iter)
             .tol(tol)
             .build()
@@ -116,15 +132,15 @@ fn convergence_is_tested_on_the_penalised_objective_under_a_prior() {
             .fit_from(initial.clone(), frames)
             .unwrap()
     };
-    let prior = Regularization::inverse_wishart(4.0, 4.0)
+    let prior = Regularisation::inverse_wishart(4.0, 4.0)
         .unwrap()
         .with_pseudo_count(2.0)
         .unwrap();
     let n = frames.len() as f64;
     for (reg, has_prior) in [
         (prior, true),
-        (Regularization::add_diagonal(1e-2).unwrap(), false),
-        (Regularization::none(), false),
+        (Regularisation::add_diagonal(1e-2).unwrap(), false),
+        (Regularisation::none(), false),
     ] {
         let full = run(reg, f64::NEG_INFINITY);
         let (obj, ll) = (&full.report.objective, &full.report.log_likelihood);
@@ -157,7 +173,7 @@ fn em_settings_round_trip_and_bad_ones_are_refused() {
     let good = Em::builder()
         .max_iter(7)
         .tol(1e-5)
-        .regularization(Regularization::add_diagonal(1e-3).unwrap())
+        .regularisation(Regularisation::add_diagonal(1e-3).unwrap())
         .init(GmmInit::Random)
         .restarts(4)
         .seed(3)
@@ -182,14 +198,14 @@ fn em_settings_round_trip_and_bad_ones_are_refused() {
         ),
         (
             (
-                "regularization",
+                "regularisation",
                 serde_json::json!({ "covariance": { "AddDiagonal": -0.1 }, "max_jitter": 0.0, "min_weight": 1e-10, "pseudo_count": 0.0 }),
             ),
             &["covariance regularisation", "-0.1"][..],
         ),
         (
             (
-                "regularization",
+                "regularisation",
                 serde_json::json!({ "covariance": "None", "max_jitter": 0.0, "min_weight": 1e-10, "pseudo_count": -2.0 }),
             ),
             &["`pseudo_count`", "-2"][..],
@@ -209,8 +225,7 @@ fn generic_em_fits_a_poisson_mixture() {
     // Three components of 2-D independent counts with well-separated rates.
     let weights = [0.5, 0.3, 0.2];
     let rates = [1.0, 8.0, 6.0, 2.0, 15.0, 15.0];
-    let truth =
-        MixtureModel::new(weights.to_vec(), Poisson::new(2, rates.to_vec()).unwrap()).unwrap();
+    let truth = Gmm::new(weights.to_vec(), Poisson::new(2, rates.to_vec()).unwrap()).unwrap();
     let n = 6000;
     let (data, labels) = truth.sample(n, &mut rng(7)).unwrap();
     assert!(data.iter().all(|x| x.fract() == 0.0 && *x >= 0.0));

@@ -9,7 +9,7 @@
 //!   (`|got − want| ≤ 1e-10·(1 + |want|)`);
 //! * the weights, means and covariances (native shape and full `K × D × D`)
 //!   after exactly one and exactly ten EM steps from those parameters, with the
-//!   covariance regularisation `Regularization::add_diagonal(reg_covar)` (or
+//!   covariance regularisation `Regularisation::add_diagonal(reg_covar)` (or
 //!   none when `reg_covar` is 0), which is sklearn's `reg_covar`
 //!   (`|got − want| ≤ 1e-8 + 1e-8·|want|`);
 //! * sklearn's `lower_bound_`: it is computed in the E-step of the last
@@ -22,8 +22,8 @@
 //! sklearn adds `10·eps` to every component's weight sum; that changes the
 //! results by about 1e-16 relative, far below the tolerances.
 
-use phasekit_emission::{CovarianceType, Frames, Gaussian, Regularization};
-use phasekit_gmm::{Em, FittedMixture, Gmm};
+use phasekit_emission::{CovarianceType, Frames, Gaussian, Regularisation};
+use phasekit_gmm::{Em, Gmm, GmmFit};
 use serde_json::Value;
 use std::sync::OnceLock;
 
@@ -161,14 +161,14 @@ fn initial_model(c: &Value) -> Gmm {
 fn em(c: &Value, steps: usize) -> Em {
     let reg_covar = num(&c["reg_covar"]);
     let reg = if reg_covar == 0.0 {
-        Regularization::none()
+        Regularisation::none()
     } else {
-        Regularization::add_diagonal(reg_covar).expect("valid reg_covar")
+        Regularisation::add_diagonal(reg_covar).expect("valid reg_covar")
     };
     Em::builder()
         .max_iter(steps)
         .tol(f64::NEG_INFINITY)
-        .regularization(reg)
+        .regularisation(reg)
         .build()
         .expect("valid EM settings")
 }
@@ -176,7 +176,7 @@ fn em(c: &Value, steps: usize) -> Em {
 fn check_parameters(
     ck: &mut Checker,
     label: &str,
-    fitted: &FittedMixture<phasekit_emission::Gaussian>,
+    fitted: &GmmFit<phasekit_emission::Gaussian>,
     want: &Value,
 ) {
     let model = &fitted.model;

@@ -8,7 +8,7 @@
 //!
 //! Every random draw comes from a seeded `ChaCha8Rng`.
 
-use phasekit_emission::{CovarianceType, Gaussian, SequenceSet};
+use phasekit_emission::{CovarianceType, Gaussian, SequenceSet, Shape};
 use phasekit_gmm::{gmeans, select_hmm_states_bic, select_hmm_states_gmeans, GMeans, GmmError};
 use phasekit_hmm::{BaumWelch, Hmm};
 use rand::SeedableRng;
@@ -51,7 +51,13 @@ fn sample_set(hmm: &Hmm<Gaussian>, n_seq: usize, len: usize, seed: u64) -> Seque
 }
 
 fn template(k: usize) -> phasekit_emission::Result<Gaussian> {
-    Gaussian::standard(CovarianceType::Full, k, 2)
+    Gaussian::standard(
+        CovarianceType::Full,
+        Shape {
+            n_states: k,
+            dim: 2,
+        },
+    )
 }
 
 #[test]
@@ -124,7 +130,15 @@ fn gmeans_state_selection_reports_what_went_wrong() {
     // A template of the wrong dimension: the fit fails and says why.
     let msg = select_hmm_states_gmeans(
         &bw,
-        |k| Gaussian::standard(CovarianceType::Diagonal, k, 3),
+        |k| {
+            Gaussian::standard(
+                CovarianceType::Diagonal,
+                Shape {
+                    n_states: k,
+                    dim: 3,
+                },
+            )
+        },
         &data,
         GMeans::default(),
         1..=20,

@@ -22,7 +22,7 @@
 //! fixed seed unless `PROPTEST_RNG_SEED` is set.
 
 use nalgebra::{DMatrix, DVector};
-use phasekit_emission::{CovarianceType, Frames, Gaussian, Regularization};
+use phasekit_emission::{CovarianceType, Frames, Gaussian, Regularisation, Shape};
 use phasekit_gmm::{Em, Gmm};
 use phasekit_gmr::{check_io, Conditional, GmmRegression, GmrError, HmmRegression, Regression};
 use phasekit_hmm::Hmm;
@@ -281,11 +281,18 @@ fn one_component_gmr_is_least_squares() {
     }
     let frames = Frames::new(&joint, 5).unwrap();
     let fitted = Em::builder()
-        .regularization(Regularization::none())
+        .regularisation(Regularisation::none())
         .build()
         .unwrap()
         .fit(
-            &Gaussian::standard(CovarianceType::Full, 1, 5).unwrap(),
+            &Gaussian::standard(
+                CovarianceType::Full,
+                Shape {
+                    n_states: 1,
+                    dim: 5,
+                },
+            )
+            .unwrap(),
             frames,
         )
         .unwrap();

@@ -10,9 +10,9 @@
 //! of `A` stay zero), and the emission's own M-step with the regularisation.
 
 use crate::error::{HmmError, Result};
-use crate::init::{initialise, Init};
+use crate::init::{initialise, HmmInit};
 use crate::model::Hmm;
-use phasekit_emission::{Emission, MStepReport, Regularization, SequenceSet, SufficientStatistics};
+use phasekit_emission::{Emission, MStepReport, Regularisation, SequenceSet, SufficientStatistics};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
@@ -221,7 +221,7 @@ impl<E: Emission> Hmm<E> {
         &self,
         stats: &ExpectedStatistics<E::Stats>,
         update: Update,
-        reg: &Regularization,
+        reg: &Regularisation,
     ) -> Result<(Hmm<E>, MStepReport)> {
         let s = self.n_states();
         stats.check_shape(s).map_err(|e| match e {
@@ -282,7 +282,7 @@ impl<E: Emission> Hmm<E> {
 /// Checked settings of Baum-Welch; build with [`BaumWelch::builder`].
 ///
 /// Deserialisation runs [`BaumWelchBuilder::build`]'s checks (and
-/// [`Regularization`]'s), so settings read from a file are refused with the
+/// [`Regularisation`]'s), so settings read from a file are refused with the
 /// same message as in code (e.g. `restarts = 0`, a NaN tolerance, k-bins
 /// smoothing outside `[0, 1]`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -291,9 +291,9 @@ pub struct BaumWelch {
     max_iter: usize,
     tol: f64,
     convergence: Convergence,
-    regularization: Regularization,
+    regularisation: Regularisation,
     update: Update,
-    init: Init,
+    init: HmmInit,
     restarts: usize,
     seed: u64,
     threads: Option<usize>,
@@ -305,9 +305,9 @@ struct BaumWelchRaw {
     max_iter: usize,
     tol: f64,
     convergence: Convergence,
-    regularization: Regularization,
+    regularisation: Regularisation,
     update: Update,
-    init: Init,
+    init: HmmInit,
     restarts: usize,
     seed: u64,
     threads: Option<usize>,
@@ -320,7 +320,7 @@ impl TryFrom<BaumWelchRaw> for BaumWelch {
             max_iter: r.max_iter,
             tol: r.tol,
             convergence: r.convergence,
-            regularization: r.regularization,
+            regularisation: r.regularisation,
             update: r.update,
             init: r.init,
             restarts: r.restarts,
@@ -343,9 +343,9 @@ impl Default for BaumWelch {
             max_iter: 100,
             tol: 1e-4,
             convergence: Convergence::Total,
-            regularization: Regularization::default(),
+            regularisation: Regularisation::default(),
             update: Update::default(),
-            init: Init::default(),
+            init: HmmInit::default(),
             restarts: 1,
             seed: 0,
             threads: None,
@@ -377,8 +377,8 @@ impl BaumWelchBuilder {
         self
     }
     /// Regularisation of every emission M-step (and of the initialisation).
-    pub fn regularization(mut self, r: Regularization) -> Self {
-        self.0.regularization = r;
+    pub fn regularisation(mut self, r: Regularisation) -> Self {
+        self.0.regularisation = r;
         self
     }
     /// Which parameters to re-estimate.
@@ -387,7 +387,7 @@ impl BaumWelchBuilder {
         self
     }
     /// Initialisation (ignored by [`BaumWelch::fit_from`]).
-    pub fn init(mut self, init: Init) -> Self {
+    pub fn init(mut self, init: HmmInit) -> Self {
         self.0.init = init;
         self
     }
@@ -428,7 +428,7 @@ impl BaumWelchBuilder {
                 reason: "at least one thread is needed".into(),
             });
         }
-        if let Init::KBins { smoothing } = b.init {
+        if let HmmInit::KBins { smoothing } = b.init {
             if !(0.0..=1.0).contains(&smoothing) {
                 return Err(HmmError::InvalidParameter {
                     name: "smoothing",
@@ -442,7 +442,7 @@ impl BaumWelchBuilder {
 
 /// What a fit did.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct FitReport {
+pub struct HmmFitReport {
     /// Number of M-steps of the returned run.
     pub iterations: usize,
     /// `log p(X)` (summed over sequences) at every E-step of the returned run; the last entry is the returned model's.
@@ -463,11 +463,11 @@ pub struct FitReport {
 
 /// A fitted model and its report.
 #[derive(Debug, Clone)]
-pub struct Fitted<E: Emission> {
+pub struct HmmFit<E: Emission> {
     /// The model whose log-likelihood was evaluated last.
     pub model: Hmm<E>,
     /// What the fit did.
-    pub report: FitReport,
+    pub report: HmmFitReport,
 }
 
 impl BaumWelch {
@@ -477,8 +477,8 @@ impl BaumWelch {
     }
 
     /// The regularisation used.
-    pub fn regularization(&self) -> &Regularization {
-        &self.regularization
+    pub fn regularisation(&self) -> &Regularisation {
+        &self.regularisation
     }
 
     fn scale(&self, data: &SequenceSet, ll: f64) -> f64 {
@@ -502,7 +502,7 @@ impl BaumWelch {
 
     /// Initialises from an emission `template` with `S` states (its parameters
     /// are ignored, its structure is kept) and runs Baum-Welch.
-    pub fn fit<E: Emission>(&self, template: &E, data: &SequenceSet) -> Result<Fitted<E>> {
+    pub fn fit<E: Emission>(&self, template: &E, data: &SequenceSet) -> Result<HmmFit<E>> {
         let clock = Instant::now();
         if data.is_empty() {
             return Err(HmmError::NoData);
@@ -513,16 +513,16 @@ impl BaumWelch {
                 .check_frames(seq)
                 .map_err(|e| HmmError::from(e).in_sequence(k))?;
         }
-        let mut best: Option<Fitted<E>> = None;
+        let mut best: Option<HmmFit<E>> = None;
         let mut finals = Vec::with_capacity(self.restarts);
         let mut first_error = None;
         for r in 0..self.restarts {
             let mut rng = ChaCha8Rng::seed_from_u64(self.seed.wrapping_add(r as u64));
             let init = match (r, self.init) {
-                (r, Init::KBins { .. }) if r > 0 => Init::KMeans,
+                (r, HmmInit::KBins { .. }) if r > 0 => HmmInit::KMeans,
                 (_, init) => init,
             };
-            let run = initialise(template, data, init, &self.regularization, &mut rng)
+            let run = initialise(template, data, init, &self.regularisation, &mut rng)
                 .and_then(|hmm| self.run(hmm, data));
             match run {
                 Ok(fitted) => {
@@ -555,7 +555,7 @@ impl BaumWelch {
     }
 
     /// Runs Baum-Welch from the given model.
-    pub fn fit_from<E: Emission>(&self, initial: Hmm<E>, data: &SequenceSet) -> Result<Fitted<E>> {
+    pub fn fit_from<E: Emission>(&self, initial: Hmm<E>, data: &SequenceSet) -> Result<HmmFit<E>> {
         let clock = Instant::now();
         initial.check_sequences(data)?;
         let mut fitted = self.run(initial, data)?;
@@ -564,7 +564,7 @@ impl BaumWelch {
         Ok(fitted)
     }
 
-    fn run<E: Emission>(&self, mut hmm: Hmm<E>, data: &SequenceSet) -> Result<Fitted<E>> {
+    fn run<E: Emission>(&self, mut hmm: Hmm<E>, data: &SequenceSet) -> Result<HmmFit<E>> {
         self.in_pool(|| {
             let mut log_likelihood = Vec::new();
             let mut objective = Vec::new();
@@ -573,7 +573,7 @@ impl BaumWelch {
             loop {
                 let stats = hmm.expected_statistics(data)?;
                 let ll = stats.log_likelihood;
-                let obj = ll + hmm.emission.log_prior(&self.regularization);
+                let obj = ll + hmm.emission.log_prior(&self.regularisation);
                 // Test the gain of what EM increases: the penalised objective
                 // `log p(X) + log prior`. Without a prior `log_prior` is exactly 0,
                 // so `obj == ll` bit for bit and the test is the log-likelihood's.
@@ -587,13 +587,13 @@ impl BaumWelch {
                 if converged || m_steps.len() >= self.max_iter {
                     break;
                 }
-                let (next, report) = hmm.maximise(&stats, self.update, &self.regularization)?;
+                let (next, report) = hmm.maximise(&stats, self.update, &self.regularisation)?;
                 hmm = next;
                 m_steps.push(report);
             }
-            Ok(Fitted {
+            Ok(HmmFit {
                 model: hmm,
-                report: FitReport {
+                report: HmmFitReport {
                     iterations: m_steps.len(),
                     log_likelihood,
                     objective,

@@ -8,13 +8,13 @@
 use crate::error::{HmmError, Result};
 use crate::model::Hmm;
 use phasekit_emission::kmeans::{kmeans, Seeding};
-use phasekit_emission::{fit_weighted, Emission, Regularization, SequenceSet};
+use phasekit_emission::{fit_weighted, Emission, Regularisation, SequenceSet};
 use rand::Rng;
 use serde::{Deserialize, Serialize};
 
 /// How the first parameters are chosen.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub enum Init {
+pub enum HmmInit {
     /// Temporal k-bins: split every sequence of length `T` at
     /// `round_half_even(linspace(0, T, S + 1))`; state `i` takes the maximum-likelihood
     /// emission of all frames of bin `i` (plus the regularisation). Transitions
@@ -31,10 +31,10 @@ pub enum Init {
     Random,
 }
 
-impl Default for Init {
+impl Default for HmmInit {
     /// Temporal k-bins with `ε = 0.01`, the seed paper's setting.
     fn default() -> Self {
-        Init::KBins { smoothing: 0.01 }
+        HmmInit::KBins { smoothing: 0.01 }
     }
 }
 
@@ -56,7 +56,7 @@ fn emission_from_weights<E: Emission>(
     template: &E,
     data: &SequenceSet,
     weights: &[Vec<f64>],
-    reg: &Regularization,
+    reg: &Regularisation,
 ) -> Result<E> {
     let s = template.n_states();
     let mut per_state = vec![0.0; s];
@@ -83,8 +83,8 @@ fn emission_from_weights<E: Emission>(
 pub fn initialise<E: Emission, R: Rng + ?Sized>(
     template: &E,
     data: &SequenceSet,
-    init: Init,
-    reg: &Regularization,
+    init: HmmInit,
+    reg: &Regularisation,
     rng: &mut R,
 ) -> Result<Hmm<E>> {
     let s = template.n_states();
@@ -98,7 +98,7 @@ pub fn initialise<E: Emission, R: Rng + ?Sized>(
         )));
     }
     match init {
-        Init::KBins { smoothing } => {
+        HmmInit::KBins { smoothing } => {
             if !(0.0..=1.0).contains(&smoothing) {
                 return Err(HmmError::InvalidParameter {
                     name: "smoothing",
@@ -137,7 +137,7 @@ pub fn initialise<E: Emission, R: Rng + ?Sized>(
             start[0] += 1.0 - smoothing;
             Hmm::new(start, transition, emission)
         }
-        Init::KMeans => {
+        HmmInit::KMeans => {
             let km = kmeans(data.all_frames(), s, Seeding::PlusPlus, 100, rng)?;
             let mut offset = 0;
             let weights: Vec<Vec<f64>> = data
@@ -158,7 +158,7 @@ pub fn initialise<E: Emission, R: Rng + ?Sized>(
                 emission,
             )
         }
-        Init::Random => {
+        HmmInit::Random => {
             let mut random_rows = |rows: usize| -> Vec<f64> {
                 let mut v: Vec<f64> = (0..rows * s).map(|_| rng.random::<f64>() + 1e-3).collect();
                 for row in v.chunks_exact_mut(s) {

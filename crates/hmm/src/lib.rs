@@ -7,7 +7,7 @@
 //! * [`ForwardFilter`]: the online forward filter, one frame at a time;
 //! * [`BaumWelch`]: multi-sequence EM with a parallel, thread-count-independent
 //!   E-step, freezing, regularisation, restarts and per-iteration history;
-//! * [`Init`]: temporal k-bins, k-means++ and random initialisation.
+//! * [`HmmInit`]: temporal k-bins, k-means++ and random initialisation.
 
 #![warn(missing_docs)]
 
@@ -21,9 +21,9 @@ pub mod model;
 pub use error::{HmmError, Result};
 pub use filter::ForwardFilter;
 pub use fit::{
-    BaumWelch, BaumWelchBuilder, Convergence, ExpectedStatistics, FitReport, Fitted, Update,
+    BaumWelch, BaumWelchBuilder, Convergence, ExpectedStatistics, HmmFit, HmmFitReport, Update,
 };
 pub use inference::{Forward, Posteriors, ViterbiPath};
-pub use init::{initialise, kbins_edges, Init};
+pub use init::{initialise, kbins_edges, HmmInit};
 pub use model::{Hmm, MODEL_FORMAT_VERSION};
 pub use phasekit_emission as emission;

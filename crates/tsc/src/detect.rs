@@ -9,7 +9,7 @@
 
 use crate::error::Result;
 use phasekit_emission::{Emission, Frames};
-use phasekit_gmm::MixtureModel;
+use phasekit_gmm::Gmm;
 use phasekit_hmm::Hmm;
 use std::borrow::Cow;
 use std::ops::Range;
@@ -39,7 +39,7 @@ pub fn select(seq: Frames<'_>, dims: &[usize]) -> Vec<f64> {
 }
 
 /// Labels by the most responsible mixture component.
-pub struct MixtureLabeller<'a, E: Emission>(pub &'a MixtureModel<E>);
+pub struct MixtureLabeller<'a, E: Emission>(pub &'a Gmm<E>);
 
 impl<E: Emission> Labeller for MixtureLabeller<'_, E> {
     fn label(&self, seq: Frames<'_>) -> Result<Vec<usize>> {

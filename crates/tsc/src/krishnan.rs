@@ -19,7 +19,7 @@
 use crate::detect::{label_changes, Labeller, MixtureLabeller};
 use crate::error::{Result, TscError};
 use crate::select::{check_range, mixture_components, Selector};
-use phasekit_emission::{CovarianceType, Frames, Gaussian, Regularization, SequenceSet};
+use phasekit_emission::{CovarianceType, Frames, Gaussian, Regularisation, SequenceSet, Shape};
 use phasekit_gmm::{select_mixture_bic, Em, Gmm};
 use serde::{Deserialize, Serialize};
 
@@ -229,7 +229,7 @@ impl KrishnanSettings {
 
     fn em(&self) -> Result<Em> {
         Ok(Em::builder()
-            .regularization(Regularization::add_diagonal(self.reg)?)
+            .regularisation(Regularisation::add_diagonal(self.reg)?)
             .restarts(self.restarts.max(1))
             .seed(self.seed)
             .build()?)
@@ -243,7 +243,13 @@ impl KrishnanSettings {
         };
         Ok(em
             .fit(
-                &Gaussian::standard(CovarianceType::Full, k, frames.dim())?,
+                &Gaussian::standard(
+                    CovarianceType::Full,
+                    Shape {
+                        n_states: k,
+                        dim: frames.dim(),
+                    },
+                )?,
                 frames,
             )?
             .model)
@@ -340,20 +346,37 @@ impl KrishnanSettings {
             });
         }
         let em = Em::builder()
-            .regularization(Regularization::add_diagonal(tc.reg)?)
+            .regularisation(Regularisation::add_diagonal(tc.reg)?)
             .restarts(self.restarts.max(1))
             .seed(self.seed)
             .build()?;
         let frames = Frames::new(&tau, 1)?;
         let k = select_mixture_bic(
             &em,
-            |k| Gaussian::standard(CovarianceType::Full, k, 1),
+            |k| {
+                Gaussian::standard(
+                    CovarianceType::Full,
+                    Shape {
+                        n_states: k,
+                        dim: 1,
+                    },
+                )
+            },
             frames,
             1..=tc.max_clusters.min(tau.len()),
         )?
         .best;
         let mixture = em
-            .fit(&Gaussian::standard(CovarianceType::Full, k, 1)?, frames)?
+            .fit(
+                &Gaussian::standard(
+                    CovarianceType::Full,
+                    Shape {
+                        n_states: k,
+                        dim: 1,
+                    },
+                )?,
+                frames,
+            )?
             .model;
         let sub = mixture.predict(frames)?;
         let mut demos_in = vec![vec![false; n_demos]; k];

@@ -15,8 +15,10 @@ use crate::select::Selector;
 use crate::tsc_hmm::{
     disagreement_flags, AutoStates, Composition, Detector, HmmSettings, Roles, TscHmm, TscSettings,
 };
-use phasekit_emission::{CovarianceType, Emission, Frames, Gaussian, Regularization, SequenceSet};
-use phasekit_gmm::{Em, Gmm, MixtureModel};
+use phasekit_emission::{
+    CovarianceType, Emission, Frames, Gaussian, Regularisation, SequenceSet, Shape,
+};
+use phasekit_gmm::{Em, Gmm};
 use phasekit_gmr::{GmmRegression, HmmRegression, OnlineRegression, Prediction};
 use phasekit_hmm::Hmm;
 use serde::{Deserialize, Serialize};
@@ -70,7 +72,7 @@ impl GmmSettings {
         Ok(Em::builder()
             .max_iter(self.max_iter)
             .tol(self.tol)
-            .regularization(Regularization::add_diagonal(self.reg)?)
+            .regularisation(Regularisation::add_diagonal(self.reg)?)
             .restarts(self.restarts.max(1))
             .seed(self.seed)
             .build()?)
@@ -378,7 +380,13 @@ impl Method {
             Method::Gmm(s) => {
                 s.validate()?;
                 let f = s.em()?.fit(
-                    &Gaussian::standard(CovarianceType::Full, s.components, data.dim())?,
+                    &Gaussian::standard(
+                        CovarianceType::Full,
+                        Shape {
+                            n_states: s.components,
+                            dim: data.dim(),
+                        },
+                    )?,
                     data.all_frames(),
                 )?;
                 Ok((Model::Gmm(f.model), FitSummary::from_gmm(&f.report)))
@@ -410,7 +418,13 @@ impl Method {
                     None => ktsc.mixture.n_components(),
                 };
                 let base = gmm.em()?.fit(
-                    &Gaussian::standard(CovarianceType::Full, components, data.dim())?,
+                    &Gaussian::standard(
+                        CovarianceType::Full,
+                        Shape {
+                            n_states: components,
+                            dim: data.dim(),
+                        },
+                    )?,
                     data.all_frames(),
                 )?;
                 let joined = join_mixtures(&base.model, &ktsc.transition_mixture, &ktsc.kept)?;
@@ -526,7 +540,7 @@ fn join_mixtures(a: &Gmm, b: &Gmm, kept: &[usize]) -> Result<Gmm> {
     }
     let total: f64 = weights.iter().sum();
     weights.iter_mut().for_each(|w| *w /= total);
-    Ok(MixtureModel::new(weights, Gaussian::full(d, means, covs)?)?)
+    Ok(Gmm::new(weights, Gaussian::full(d, means, covs)?)?)
 }
 
 /// What a fit did, in a form common to every method.
@@ -588,7 +602,7 @@ impl FitSummary {
         self.bic = sel.scores.clone();
     }
 
-    fn from_hmm(r: &phasekit_hmm::FitReport) -> Self {
+    fn from_hmm(r: &phasekit_hmm::HmmFitReport) -> Self {
         Self::from_parts(
             r.iterations,
             &r.log_likelihood,

@@ -3,7 +3,7 @@
 //! BIC and G-means are the automatic choices offered here).
 
 use crate::error::{Result, TscError};
-use phasekit_emission::{CovarianceType, Frames, Gaussian};
+use phasekit_emission::{CovarianceType, Frames, Gaussian, Shape};
 use phasekit_gmm::{gmeans, select_mixture_bic, Em, GMeans};
 use serde::{Deserialize, Serialize};
 use std::ops::RangeInclusive;
@@ -76,7 +76,15 @@ pub fn mixture_components(
         Selector::Bic => {
             select_mixture_bic(
                 em,
-                |k| Gaussian::standard(CovarianceType::Full, k, d),
+                |k| {
+                    Gaussian::standard(
+                        CovarianceType::Full,
+                        Shape {
+                            n_states: k,
+                            dim: d,
+                        },
+                    )
+                },
                 frames,
                 lo..=hi,
             )?

@@ -14,10 +14,12 @@
 use crate::detect::{dilate, runs, select, worst_fraction, Disagreement, FilterLabeller};
 use crate::error::{Result, TscError};
 use crate::select::{check_range, Selector};
-use phasekit_emission::{CovarianceType, Emission, Frames, Gaussian, Regularization, SequenceSet};
+use phasekit_emission::{
+    CovarianceType, Emission, Frames, Gaussian, Regularisation, SequenceSet, Shape,
+};
 use phasekit_gmm::{select_hmm_states_bic, select_hmm_states_gmeans, GMeans, Selection};
 use phasekit_gmr::HmmRegression;
-use phasekit_hmm::{BaumWelch, Convergence, FitReport, Hmm, Init, Update};
+use phasekit_hmm::{BaumWelch, Convergence, Hmm, HmmFitReport, HmmInit, Update};
 use serde::{Deserialize, Serialize};
 
 /// Which dims of a joint frame are the human's (observed at test time) and the robot's (predicted).
@@ -141,15 +143,15 @@ impl HmmSettings {
             .max_iter(self.max_iter)
             .tol(self.tol)
             .convergence(Convergence::MeanPerSequence)
-            .regularization(Regularization::add_diagonal(self.reg)?)
-            .init(Init::KBins { smoothing: 0.01 })
+            .regularisation(Regularisation::add_diagonal(self.reg)?)
+            .init(HmmInit::KBins { smoothing: 0.01 })
             .restarts(self.restarts)
             .seed(self.seed)
             .build()?)
     }
 
     /// Fits an HMM with these settings to `data`.
-    pub fn fit(&self, data: &SequenceSet) -> Result<(Hmm<Gaussian>, FitReport)> {
+    pub fn fit(&self, data: &SequenceSet) -> Result<(Hmm<Gaussian>, HmmFitReport)> {
         let (hmm, report, _) = self.fit_selected(data)?;
         Ok((hmm, report))
     }
@@ -159,10 +161,18 @@ impl HmmSettings {
     pub fn fit_selected(
         &self,
         data: &SequenceSet,
-    ) -> Result<(Hmm<Gaussian>, FitReport, Option<Selection>)> {
+    ) -> Result<(Hmm<Gaussian>, HmmFitReport, Option<Selection>)> {
         self.validate()?;
         let bw = self.baum_welch()?;
-        let template = |k| Gaussian::standard(self.covariance, k, data.dim());
+        let template = |k| {
+            Gaussian::standard(
+                self.covariance,
+                Shape {
+                    n_states: k,
+                    dim: data.dim(),
+                },
+            )
+        };
         let (states, selection) = match self.auto_states {
             None => (self.states, None),
             Some(a) => {
@@ -363,11 +373,11 @@ pub struct TscHmm {
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct TscReport {
     /// Fit of `λ`.
-    pub base: FitReport,
+    pub base: HmmFitReport,
     /// Fit of `λ_T`.
-    pub transition: FitReport,
+    pub transition: HmmFitReport,
     /// Fit of the union HMM, if any.
-    pub union: Option<FitReport>,
+    pub union: Option<HmmFitReport>,
     /// Flagged frames of every training demonstration.
     pub flags: TransitionFlags,
     /// Number of transition segments `λ_T` was trained on.
@@ -498,7 +508,7 @@ impl TscHmm {
                     .max_iter(settings.base.max_iter)
                     .tol(settings.base.tol)
                     .convergence(Convergence::MeanPerSequence)
-                    .regularization(Regularization::add_diagonal(settings.base.reg)?)
+                    .regularisation(Regularisation::add_diagonal(settings.base.reg)?)
                     .update(update)
                     .build()?;
                 let fitted = bw.fit_from(initial, data)?;

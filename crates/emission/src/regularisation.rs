@@ -5,7 +5,7 @@ use serde::{Deserialize, Serialize};
 
 /// Regularisation of covariance matrices in the M-step.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub enum CovarianceRegularization {
+pub enum CovarianceRegularisation {
     /// Plain maximum likelihood: `Σ = S / n`.
     None,
     /// Add `r·I` after the maximum-likelihood update: `Σ = S / n + r I`
@@ -34,32 +34,32 @@ pub enum CovarianceRegularization {
 /// the name of the offending setting), so settings read from a file are as
 /// trustworthy as settings built in code.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(try_from = "RegularizationRaw")]
-pub struct Regularization {
-    covariance: CovarianceRegularization,
+#[serde(try_from = "RegularisationRaw")]
+pub struct Regularisation {
+    covariance: CovarianceRegularisation,
     max_jitter: f64,
     min_weight: f64,
     pseudo_count: f64,
 }
 
-/// The serialised form of [`Regularization`], before validation.
+/// The serialised form of [`Regularisation`], before validation.
 #[derive(Deserialize)]
-struct RegularizationRaw {
-    covariance: CovarianceRegularization,
+struct RegularisationRaw {
+    covariance: CovarianceRegularisation,
     max_jitter: f64,
     min_weight: f64,
     pseudo_count: f64,
 }
 
-impl TryFrom<RegularizationRaw> for Regularization {
+impl TryFrom<RegularisationRaw> for Regularisation {
     type Error = EmissionError;
     /// Rebuilds through the checked constructors, so that no unchecked value gets in.
-    fn try_from(raw: RegularizationRaw) -> Result<Self> {
+    fn try_from(raw: RegularisationRaw) -> Result<Self> {
         let base = match raw.covariance {
-            CovarianceRegularization::None => Regularization::none(),
-            CovarianceRegularization::AddDiagonal(r) => Regularization::add_diagonal(r)?,
-            CovarianceRegularization::InverseWishart { scale, dof } => {
-                Regularization::inverse_wishart(scale, dof)?
+            CovarianceRegularisation::None => Regularisation::none(),
+            CovarianceRegularisation::AddDiagonal(r) => Regularisation::add_diagonal(r)?,
+            CovarianceRegularisation::InverseWishart { scale, dof } => {
+                Regularisation::inverse_wishart(scale, dof)?
             }
         };
         base.with_max_jitter(raw.max_jitter)?
@@ -68,12 +68,12 @@ impl TryFrom<RegularizationRaw> for Regularization {
     }
 }
 
-impl Default for Regularization {
+impl Default for Regularisation {
     /// No covariance regularisation, no jitter, states with total weight below
     /// `1e-10` kept unchanged, no pseudo-counts.
     fn default() -> Self {
-        Regularization {
-            covariance: CovarianceRegularization::None,
+        Regularisation {
+            covariance: CovarianceRegularisation::None,
             max_jitter: 0.0,
             min_weight: 1e-10,
             pseudo_count: 0.0,
@@ -92,7 +92,7 @@ fn nonneg(name: &'static str, v: f64) -> Result<f64> {
     }
 }
 
-impl Regularization {
+impl Regularisation {
     /// Plain maximum likelihood (same as `default()`).
     pub fn none() -> Self {
         Self::default()
@@ -100,8 +100,8 @@ impl Regularization {
 
     /// Add `r·I` to every covariance after the M-step (`r ≥ 0`).
     pub fn add_diagonal(r: f64) -> Result<Self> {
-        Ok(Regularization {
-            covariance: CovarianceRegularization::AddDiagonal(nonneg(
+        Ok(Regularisation {
+            covariance: CovarianceRegularisation::AddDiagonal(nonneg(
                 "covariance regularisation",
                 r,
             )?),
@@ -118,8 +118,8 @@ impl Regularization {
                 reason: "must be positive".into(),
             });
         }
-        Ok(Regularization {
-            covariance: CovarianceRegularization::InverseWishart {
+        Ok(Regularisation {
+            covariance: CovarianceRegularisation::InverseWishart {
                 scale,
                 dof: nonneg("inverse-Wishart degrees of freedom", dof)?,
             },
@@ -149,7 +149,7 @@ impl Regularization {
     }
 
     /// The covariance regularisation.
-    pub fn covariance(&self) -> CovarianceRegularization {
+    pub fn covariance(&self) -> CovarianceRegularisation {
         self.covariance
     }
 
@@ -196,7 +196,7 @@ pub enum MStepEvent {
 /// the states that needed special treatment.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct MStepReport {
-    /// Amount added to every covariance diagonal by [`CovarianceRegularization::AddDiagonal`].
+    /// Amount added to every covariance diagonal by [`CovarianceRegularisation::AddDiagonal`].
     pub added_diagonal: f64,
     /// States that were kept or jittered.
     pub events: Vec<MStepEvent>,

@@ -1,22 +1,22 @@
-//! `Regularization` read from JSON runs the same checks as its constructors:
+//! `Regularisation` read from JSON runs the same checks as its constructors:
 //! good settings round-trip exactly, bad ones are refused with the name of the
 //! offending setting.
 
-use phasekit_emission::{CovarianceRegularization, Regularization};
+use phasekit_emission::{CovarianceRegularisation, Regularisation};
 use serde_json::{json, Value};
 
-fn parse(v: Value) -> Result<Regularization, String> {
+fn parse(v: Value) -> Result<Regularisation, String> {
     serde_json::from_value(v).map_err(|e| e.to_string())
 }
 
 #[test]
 fn good_regularisation_round_trips() {
     for reg in [
-        Regularization::none(),
-        Regularization::add_diagonal(0.0).unwrap(),
-        Regularization::add_diagonal(1e-2).unwrap(),
-        Regularization::inverse_wishart(0.3, 0.0).unwrap(),
-        Regularization::inverse_wishart(2.0, 5.5)
+        Regularisation::none(),
+        Regularisation::add_diagonal(0.0).unwrap(),
+        Regularisation::add_diagonal(1e-2).unwrap(),
+        Regularisation::inverse_wishart(0.3, 0.0).unwrap(),
+        Regularisation::inverse_wishart(2.0, 5.5)
             .unwrap()
             .with_max_jitter(1e-4)
             .unwrap()
@@ -26,14 +26,14 @@ fn good_regularisation_round_trips() {
             .unwrap(),
     ] {
         let json = serde_json::to_string(&reg).unwrap();
-        let back: Regularization = serde_json::from_str(&json).unwrap();
+        let back: Regularisation = serde_json::from_str(&json).unwrap();
         assert_eq!(back, reg, "{json}");
     }
 }
 
 #[test]
 fn bad_regularisation_is_refused_with_the_setting_named() {
-    let base = serde_json::to_value(Regularization::none()).unwrap();
+    let base = serde_json::to_value(Regularisation::none()).unwrap();
     let with = |field: &str, v: Value| {
         let mut b = base.clone();
         b[field] = v;
@@ -78,5 +78,5 @@ fn bad_regularisation_is_refused_with_the_setting_named() {
     }
     // The accepted values are exactly those of the constructors.
     let ok = parse(with("covariance", json!({ "AddDiagonal": 0.5 }))).unwrap();
-    assert_eq!(ok.covariance(), CovarianceRegularization::AddDiagonal(0.5));
+    assert_eq!(ok.covariance(), CovarianceRegularisation::AddDiagonal(0.5));
 }
