@@ -478,6 +478,27 @@ fn online() {
 fn kernels() {
     use phasekit::emission::Emission;
     use rand::{Rng, SeedableRng};
+    {
+        // The slice exp of the recursions: S values at a time.
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(2);
+        for n in [7usize, 16, 1000] {
+            let x: Vec<f64> = (0..1000 * n)
+                .map(|_| rng.random_range(-40.0..0.0))
+                .collect();
+            let mut v = x.clone();
+            let best = (0..15)
+                .map(|_| {
+                    v.copy_from_slice(&x);
+                    let c0 = process_cpu_seconds();
+                    for c in v.chunks_exact_mut(n) {
+                        phasekit::emission::linalg::exp_in_place(black_box(c));
+                    }
+                    (process_cpu_seconds() - c0) / (1000 * n) as f64 * 1e9
+                })
+                .fold(f64::INFINITY, f64::min);
+            println!("exp_in_place on slices of {n:<4}: {best:6.2} ns per value");
+        }
+    }
     for (s, d) in [(8usize, 36usize), (16, 12), (8, 12)] {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
         let g = random_gaussian(s, d, 2.0, &mut rng);
