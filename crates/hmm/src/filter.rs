@@ -2,8 +2,13 @@
 //!
 //! `h_t(j) ∝ b_j(x_t) Σ_i h_{t−1}(i) a_ij` (with `h_0 ∝ π_j b_j(x_0)`), by the
 //! same recursion as the batch [`Hmm::forward`] (including its switch to log
-//! space when linear arithmetic would lose a state), so the two agree to the last bit.
-//! No allocation happens per frame.
+//! space when linear arithmetic would lose a state), so the two agree to the
+//! last bit. No allocation happens per frame for complete frames.
+//!
+//! Missing values follow the rule of batch inference: a frame with NaN
+//! entries goes to the emission's [`Emission::log_density_into`], which
+//! evaluates it on the marginal of its observed values (density 1 when
+//! nothing is observed, so that the filter only takes its transition step).
 
 use crate::error::{HmmError, Result};
 use crate::inference::ForwardCore;
@@ -14,7 +19,6 @@ use phasekit_emission::{Emission, EmissionError, Frames};
 #[derive(Debug, Clone)]
 pub struct ForwardFilter<E: Emission> {
     hmm: Hmm<E>,
-    marginals: Marginals<E>,
     belief: Vec<f64>,
     core: ForwardCore,
     log_b: Vec<f64>,
@@ -34,7 +38,6 @@ impl<E: Emission> ForwardFilter<E> {
             scratch: vec![0.0; s],
             log_likelihood: 0.0,
             frames: 0,
-            marginals: Marginals::default(),
             hmm,
         }
     }
@@ -49,35 +52,36 @@ impl<E: Emission> ForwardFilter<E> {
         &self.hmm
     }
 
-    /// Takes frame `x_t` (length `D` of the filtered model) and returns `h_t`.
+    /// Takes frame `x_t` (length `D` of the filtered model; NaN for a value
+    /// not observed) and returns `h_t`.
     ///
-    /// An impossible frame (probability zero under every state) is an error and
-    /// leaves the belief unchanged, so a controller can skip the frame and go on.
+    /// A frame of the wrong length, an infinite value or a value outside the
+    /// emission's support is an error; so is an impossible frame (probability
+    /// zero under every state). Either way the belief is left unchanged, so
+    /// a controller can skip the frame and go on.
     pub fn step(&mut self, frame: &[f64]) -> Result<&[f64]> {
-        let frames = Frames::new(frame, self.hmm.dim().max(1)).and_then(|f| {
-            if f.len() == 1 {
-                Ok(f)
-            } else {
-                Err(EmissionError::DimensionMismatch {
-                    context: "online filter frame",
-                    expected: self.hmm.dim(),
-                    found: frame.len(),
-                })
+        let dim = self.hmm.dim();
+        if frame.len() != dim {
+            return Err(EmissionError::DimensionMismatch {
+                context: "online filter frame",
+                expected: dim,
+                found: frame.len(),
             }
-        })?;
-        self.hmm.emission.check_frames(frames)?;
-        self.marginals
-            .log_density_into(&self.hmm.emission, frames, &mut self.log_b)?;
-        let lc = self.core.step(&self.hmm, &self.log_b, &mut self.scratch);
-        if lc > f64::NEG_INFINITY {
-            std::mem::swap(&mut self.belief, &mut self.scratch);
+            .into());
         }
+        let frames = Frames::new(frame, dim)?;
+        self.hmm.emission.check_frames(frames)?;
+        self.hmm
+            .emission
+            .log_density_into(frames, &mut self.log_b)?;
+        let lc = self.core.step_row(&self.log_b, &mut self.scratch);
         if lc == f64::NEG_INFINITY {
             return Err(HmmError::ImpossibleSequence {
                 sequence: 0,
                 frame: self.frames,
             });
         }
+        std::mem::swap(&mut self.belief, &mut self.scratch);
         self.log_likelihood += lc;
         self.frames += 1;
         Ok(&self.belief)
@@ -101,7 +105,7 @@ impl<E: Emission> ForwardFilter<E> {
     /// Forgets all frames (a new demonstration begins).
     pub fn reset(&mut self) {
         self.belief.copy_from_slice(&self.hmm.start);
-        self.core.reset(&self.hmm);
+        self.core.reset();
         self.log_likelihood = 0.0;
         self.frames = 0;
     }
@@ -111,63 +115,5 @@ impl<E: Emission> Hmm<E> {
     /// An online filter over this model.
     pub fn filter(&self) -> ForwardFilter<E> {
         ForwardFilter::new(self.clone())
-    }
-}
-
-/// Emission marginals on the observed dims of frames with missing values
-/// (NaN), cached by missing pattern, so that a marker that stays dropped costs
-/// one marginal model, not one per frame: `log b_i(x_o)` is the marginal's
-/// log-density of the observed values, which are complete.
-#[derive(Debug, Clone)]
-struct Marginals<E> {
-    by_pattern: std::collections::HashMap<Vec<bool>, E>,
-    key: Vec<bool>,
-    dims: Vec<usize>,
-    observed: Vec<f64>,
-}
-
-impl<E> Default for Marginals<E> {
-    fn default() -> Self {
-        Marginals {
-            by_pattern: std::collections::HashMap::new(),
-            key: Vec::new(),
-            dims: Vec::new(),
-            observed: Vec::new(),
-        }
-    }
-}
-
-/// Patterns held before the cache is emptied (bounds its memory).
-const PATTERNS: usize = 1024;
-
-impl<E: Emission> Marginals<E> {
-    /// `log b_i(x)` of one frame into `out`, on the observed dims' marginal
-    /// when some values are missing (0 for every state when none is observed).
-    fn log_density_into(&mut self, emission: &E, frame: Frames<'_>, out: &mut [f64]) -> Result<()> {
-        if !frame.has_missing() {
-            return Ok(emission.log_density_into(frame, out)?);
-        }
-        let x = frame.as_slice();
-        self.key.clear();
-        self.key.extend(x.iter().map(|v| v.is_nan()));
-        self.dims.clear();
-        self.dims.extend((0..x.len()).filter(|&k| !x[k].is_nan()));
-        if self.dims.is_empty() {
-            out.fill(0.0);
-            return Ok(());
-        }
-        if !self.by_pattern.contains_key(self.key.as_slice()) {
-            if self.by_pattern.len() >= PATTERNS {
-                self.by_pattern.clear();
-            }
-            let m = emission.marginal(&self.dims)?;
-            self.by_pattern.insert(self.key.clone(), m);
-        }
-        self.observed.clear();
-        self.observed.extend(self.dims.iter().map(|&k| x[k]));
-        let m = &self.by_pattern[self.key.as_slice()];
-        let xo = Frames::new(&self.observed, self.dims.len())?;
-        m.check_frames(xo)?;
-        Ok(m.log_density_into(xo, out)?)
     }
 }

@@ -10,6 +10,8 @@
 //! of `A` stay zero), and the emission's own M-step with the regularisation.
 
 use crate::error::{HmmError, Result};
+use crate::inference::formulas::{start_update, transition_update};
+use crate::inference::PosteriorWorkspace;
 use crate::init::{initialise, HmmInit};
 use crate::model::Hmm;
 use phasekit_emission::{Emission, MStepReport, Regularisation, SequenceSet, SufficientStatistics};
@@ -159,51 +161,76 @@ impl<E: Emission> Hmm<E> {
         }
     }
 
+    /// Adds sequence `k` to `acc`: its log-likelihood, first-frame
+    /// posteriors, expected transitions and emission statistics.
     fn accumulate_sequence(
         &self,
         k: usize,
         data: &SequenceSet,
+        ws: &mut PosteriorWorkspace,
         acc: &mut ExpectedStatistics<E::Stats>,
     ) -> Result<()> {
         let seq = data.get(k);
         let s = self.n_states();
-        let log_b = self
-            .emission
-            .log_density(seq)
+        self.emission
+            .log_density_into(seq, ws.log_b_for(seq.len()))
             .map_err(|e| HmmError::from(e).in_sequence(k))?;
-        let mut gamma = vec![0.0; log_b.len()];
-        let (xi, ll) = self
-            .posteriors_into(&log_b, &mut gamma)
-            .map_err(|e| e.in_sequence(k))?;
+        let ll = ws.run().map_err(|e| e.in_sequence(k))?;
         acc.log_likelihood += ll;
-        for (a, g) in acc.start.iter_mut().zip(&gamma[..s]) {
+        for (a, g) in acc.start.iter_mut().zip(&ws.gamma[..s]) {
             *a += g;
         }
-        for (a, x) in acc.transitions.iter_mut().zip(&xi) {
+        for (a, x) in acc.transitions.iter_mut().zip(&ws.xi) {
             *a += x;
         }
         acc.n_sequences += 1;
         acc.n_frames += seq.len();
         self.emission
-            .accumulate(seq, &gamma, &mut acc.emission)
+            .accumulate(seq, &ws.gamma, &mut acc.emission)
             .map_err(|e| HmmError::from(e).in_sequence(k))
+    }
+
+    /// The statistics of one block of consecutive sequences.
+    fn block_statistics(
+        &self,
+        range: std::ops::Range<usize>,
+        data: &SequenceSet,
+    ) -> Result<ExpectedStatistics<E::Stats>> {
+        let mut acc = self.empty_statistics();
+        let mut ws = PosteriorWorkspace::new(self);
+        for k in range {
+            self.accumulate_sequence(k, data, &mut ws, &mut acc)?;
+        }
+        Ok(acc)
     }
 
     /// The E-step over all sequences, in parallel on the current rayon pool;
     /// bit-identical whatever the number of threads. Data must have passed
     /// [`Hmm::check_sequences`].
+    ///
+    /// Sequences are grouped into blocks of consecutive sequences that
+    /// depend only on the data; every block's statistics are accumulated
+    /// sequence by sequence and the blocks are merged in their order, so the
+    /// grouping of the work over threads changes no bit. On one thread (or
+    /// with one block) the blocks run in place, without the pool.
     pub fn expected_statistics(&self, data: &SequenceSet) -> Result<ExpectedStatistics<E::Stats>> {
-        let parts: Vec<Result<ExpectedStatistics<E::Stats>>> = blocks(data)
-            .into_par_iter()
-            .map(|range| {
-                let mut acc = self.empty_statistics();
-                for k in range {
-                    self.accumulate_sequence(k, data, &mut acc)?;
-                }
-                Ok(acc)
-            })
-            .collect();
-        let mut total = self.empty_statistics();
+        let ranges = blocks(data);
+        let parts: Vec<Result<ExpectedStatistics<E::Stats>>> =
+            if ranges.len() == 1 || rayon::current_num_threads() == 1 {
+                ranges
+                    .into_iter()
+                    .map(|range| self.block_statistics(range, data))
+                    .collect()
+            } else {
+                ranges
+                    .into_par_iter()
+                    .map(|range| self.block_statistics(range, data))
+                    .collect()
+            };
+        let mut parts = parts.into_iter();
+        let mut total = parts
+            .next()
+            .unwrap_or_else(|| Ok(self.empty_statistics()))?;
         for part in parts {
             total.merge(&part?)?;
         }
@@ -211,7 +238,8 @@ impl<E: Emission> Hmm<E> {
     }
 
     /// The M-step: new parameters from expected statistics,
-    /// `π_i = s_i / Σ_j s_j` and `a_ij = ξ_ij / Σ_j' ξ_ij'`, then the emission's
+    /// `π_i = s_i / Σ_j s_j` ([`start_update`]) and
+    /// `a_ij = ξ_ij / Σ_j' ξ_ij'` ([`transition_update`]), then the emission's
     /// M-step. Frozen parts are kept; a transition row with no expected visits
     /// keeps its previous values.
     ///
@@ -245,19 +273,17 @@ impl<E: Emission> Hmm<E> {
         let mut start = self.start.clone();
         let mut transition = self.transition.clone();
         if update.start {
-            let total: f64 = stats.start.iter().sum();
-            if total > 0.0 {
-                start = stats.start.iter().map(|v| v / total).collect();
+            if let Some(p) = start_update(&stats.start) {
+                start = p;
             }
         }
         if update.transition {
-            for i in 0..s {
-                let row = &stats.transitions[i * s..(i + 1) * s];
-                let total: f64 = row.iter().sum();
-                if total > 0.0 {
-                    for j in 0..s {
-                        transition[i * s + j] = row[j] / total;
-                    }
+            for (i, row) in transition_update(&stats.transitions, s)
+                .into_iter()
+                .enumerate()
+            {
+                if let Some(row) = row {
+                    transition[i * s..(i + 1) * s].copy_from_slice(&row);
                 }
             }
         }

@@ -50,8 +50,12 @@ mod tests {
     fn kernels_give_the_same_bits_at_every_level() {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
         for d in [1usize, 2, 3, 7, 12, 36] {
-            let w: Vec<f64> = (0..packed_len(d)).map(|_| rng.random_range(-2.0..2.0)).collect();
-            let xt: Vec<f64> = (0..d * LANES).map(|_| rng.random_range(-3.0..3.0)).collect();
+            let w: Vec<f64> = (0..packed_len(d))
+                .map(|_| rng.random_range(-2.0..2.0))
+                .collect();
+            let xt: Vec<f64> = (0..d * LANES)
+                .map(|_| rng.random_range(-3.0..3.0))
+                .collect();
             let m = 4 * rng.random_range(1..40);
             let rows = d.next_multiple_of(4).max(d.next_multiple_of(3)) + 3;
             let a: Vec<f64> = (0..rows * m).map(|_| rng.random_range(-1.0..1.0)).collect();
@@ -85,7 +89,11 @@ mod tests {
             let native = run();
             assert_eq!(bits(&portable.0), bits(&native.0), "D = {d}: squared norms");
             assert_eq!(bits(&portable.1), bits(&native.1), "D = {d}: dot tiles");
-            assert_eq!(portable.2.to_bits(), native.2.to_bits(), "centre_weight sum");
+            assert_eq!(
+                portable.2.to_bits(),
+                native.2.to_bits(),
+                "centre_weight sum"
+            );
             assert_eq!(bits(&portable.3), bits(&native.3));
             assert_eq!(bits(&portable.4), bits(&native.4));
             assert_eq!(bits(&portable.5), bits(&native.5), "sub_scalar");
