@@ -4,7 +4,7 @@
 use crate::error::{EmissionError, Result};
 use crate::regularisation::{MStepEvent, MStepReport, Regularisation};
 use crate::{
-    check_dim, check_dims, check_len, check_state, Emission, Frames, SufficientStatistics,
+    check_dim, check_dims, check_len, check_state, Emission, Frames, Marginal, SufficientStatistics,
 };
 use rand::Rng;
 use serde::{Deserialize, Serialize};
@@ -259,16 +259,6 @@ impl Emission for Poisson {
         Ok(report)
     }
 
-    fn marginal(&self, dims: &[usize]) -> Result<Self> {
-        check_dims(dims, self.dim)?;
-        let rates = self
-            .rates
-            .chunks_exact(self.dim)
-            .flat_map(|r| dims.iter().map(move |&k| r[k]))
-            .collect();
-        Poisson::new(dims.len(), rates)
-    }
-
     fn sample_into<R: Rng + ?Sized>(
         &self,
         state: usize,
@@ -295,5 +285,27 @@ impl Emission for Poisson {
 
     fn n_parameters(&self) -> usize {
         self.rates.len()
+    }
+}
+
+impl Marginal for Poisson {
+    fn marginal(&self, dims: &[usize]) -> Result<Self> {
+        check_dims(dims, self.dim)?;
+        let rates = self
+            .rates
+            .chunks_exact(self.dim)
+            .flat_map(|r| dims.iter().map(move |&k| r[k]))
+            .collect();
+        Poisson::new(dims.len(), rates)
+    }
+}
+
+impl crate::ConcatStates for Poisson {
+    /// The same dimension on both sides.
+    fn concat_states(&self, other: &Self) -> Result<Self> {
+        check_dim(self.dim, other.dim)?;
+        let mut rates = self.rates.clone();
+        rates.extend_from_slice(&other.rates);
+        Poisson::new(self.dim, rates)
     }
 }

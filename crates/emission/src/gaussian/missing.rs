@@ -5,7 +5,7 @@
 use super::{Gaussian, GaussianStats};
 use crate::error::{EmissionError, Result};
 use crate::missing::{for_each_run, observed_dims, PatternCache};
-use crate::{CovarianceType, Emission, Frames};
+use crate::{CovarianceType, Frames, Marginal};
 use nalgebra::DMatrix;
 
 impl Gaussian {

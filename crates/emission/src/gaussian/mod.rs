@@ -19,10 +19,11 @@ mod stats;
 
 pub use stats::GaussianStats;
 
+use crate::capability::{check_split, ConcatStates, Conditional, ConditionalSplit};
 use crate::error::{EmissionError, Result};
 use crate::linalg::{self, packed_len, packed_lower_sq_norm};
 use crate::regularisation::{CovarianceRegularisation, MStepReport, Regularisation};
-use crate::{check_dim, check_dims, check_len, check_state, Emission, Frames, Shape};
+use crate::{check_dim, check_dims, check_len, check_state, Emission, Frames, Marginal, Shape};
 use kernels::with_diff;
 use nalgebra::DMatrix;
 use rand::Rng;
@@ -561,31 +562,6 @@ impl Emission for Gaussian {
         }
     }
 
-    fn marginal(&self, dims: &[usize]) -> Result<Self> {
-        let d = self.dim;
-        check_dims(dims, d)?;
-        let means: Vec<f64> = (0..self.n_states)
-            .flat_map(|i| dims.iter().map(move |&k| (i, k)))
-            .map(|(i, k)| self.means[i * d + k])
-            .collect();
-        let sub = |block: &[f64]| -> Vec<f64> {
-            dims.iter()
-                .flat_map(|&r| dims.iter().map(move |&c| block[r * d + c]))
-                .collect()
-        };
-        let covs = match self.kind {
-            CovarianceType::Full => self.covariances.chunks_exact(d * d).flat_map(sub).collect(),
-            CovarianceType::Tied => sub(&self.covariances),
-            CovarianceType::Diagonal => self
-                .covariances
-                .chunks_exact(d)
-                .flat_map(|v| dims.iter().map(move |&k| v[k]))
-                .collect(),
-            CovarianceType::Spherical => self.covariances.clone(),
-        };
-        Gaussian::new(self.kind, dims.len(), means, covs)
-    }
-
     fn sample_into<R: Rng + ?Sized>(
         &self,
         state: usize,
@@ -639,5 +615,208 @@ impl Emission for Gaussian {
                 CovarianceType::Spherical => s,
                 CovarianceType::Tied => d * (d + 1) / 2,
             }
+    }
+}
+
+impl Marginal for Gaussian {
+    fn marginal(&self, dims: &[usize]) -> Result<Self> {
+        let d = self.dim;
+        check_dims(dims, d)?;
+        let means: Vec<f64> = (0..self.n_states)
+            .flat_map(|i| dims.iter().map(move |&k| (i, k)))
+            .map(|(i, k)| self.means[i * d + k])
+            .collect();
+        let sub = |block: &[f64]| -> Vec<f64> {
+            dims.iter()
+                .flat_map(|&r| dims.iter().map(move |&c| block[r * d + c]))
+                .collect()
+        };
+        let covs = match self.kind {
+            CovarianceType::Full => self.covariances.chunks_exact(d * d).flat_map(sub).collect(),
+            CovarianceType::Tied => sub(&self.covariances),
+            CovarianceType::Diagonal => self
+                .covariances
+                .chunks_exact(d)
+                .flat_map(|v| dims.iter().map(move |&k| v[k]))
+                .collect(),
+            CovarianceType::Spherical => self.covariances.clone(),
+        };
+        Gaussian::new(self.kind, dims.len(), means, covs)
+    }
+}
+
+impl ConcatStates for Gaussian {
+    /// Same covariance structure and dimension; two tied Gaussians join only
+    /// when they share the same covariance (convert with
+    /// [`Gaussian::to_full`] otherwise).
+    fn concat_states(&self, other: &Self) -> Result<Self> {
+        check_dim(self.dim, other.dim)?;
+        if self.kind != other.kind {
+            return Err(invalid(
+                "covariance_type",
+                format!(
+                    "cannot join {:?} and {:?} Gaussian states; convert both with to_full()",
+                    self.kind, other.kind
+                ),
+            ));
+        }
+        let mut means = self.means.clone();
+        means.extend_from_slice(&other.means);
+        let covs = if self.kind == CovarianceType::Tied {
+            if self.covariances != other.covariances {
+                return Err(invalid(
+                    "covariance_type",
+                    "two tied Gaussians with different covariances cannot share one; convert both with to_full()".into(),
+                ));
+            }
+            self.covariances.clone()
+        } else {
+            let mut c = self.covariances.clone();
+            c.extend_from_slice(&other.covariances);
+            c
+        };
+        Gaussian::new(self.kind, self.dim, means, covs)
+    }
+}
+
+impl Gaussian {
+    /// The same states with full covariances (whatever the structure).
+    pub fn to_full(&self) -> Result<Self> {
+        let d = self.dim;
+        let covs = (0..self.n_states)
+            .flat_map(|i| {
+                let c = self.covariance(i);
+                (0..d * d).map(move |k| c[(k / d, k % d)])
+            })
+            .collect();
+        Gaussian::new(CovarianceType::Full, d, self.means.clone(), covs)
+    }
+}
+
+/// The conditionals of a [`Gaussian`] for one `(input, output)` split: per
+/// state (one shared for tied), the input marginal `N(x_I; μ_I, Σ_II)` and
+/// `E[x_O | x_I] = μ_O + Σ_OI Σ_II⁻¹ (x_I − μ_I)`,
+/// `Cov[x_O | x_I] = Σ_OO − Σ_OI Σ_II⁻¹ Σ_IO` (constant in the input), for
+/// every covariance structure.
+#[derive(Debug, Clone)]
+pub struct GaussianSplit {
+    input: Vec<usize>,
+    output: Vec<usize>,
+    n_states: usize,
+    /// Per state: `μ_I`, `μ_O`.
+    mu_in: Vec<f64>,
+    mu_out: Vec<f64>,
+    /// Per covariance: packed `L_II⁻¹`, log-density constant, regression and conditional.
+    whiten_in: Vec<Vec<f64>>,
+    log_norm_in: Vec<f64>,
+    regression: Vec<Vec<f64>>,
+    conditional: Vec<Vec<f64>>,
+    shared: bool,
+    diff: Vec<f64>,
+}
+
+impl GaussianSplit {
+    fn delta(&mut self, state: usize, input: &[f64]) -> f64 {
+        let ni = self.input.len();
+        for (k, v) in input.iter().enumerate() {
+            self.diff[k] = v - self.mu_in[state * ni + k];
+        }
+        let j = if self.shared { 0 } else { state };
+        packed_lower_sq_norm(&self.whiten_in[j], &self.diff)
+    }
+}
+
+impl ConditionalSplit for GaussianSplit {
+    fn n_states(&self) -> usize {
+        self.n_states
+    }
+
+    fn input_dims(&self) -> &[usize] {
+        &self.input
+    }
+
+    fn output_dims(&self) -> &[usize] {
+        &self.output
+    }
+
+    fn input_log_density(&mut self, state: usize, input: &[f64]) -> Result<f64> {
+        check_state(state, self.n_states)?;
+        check_len("regression input", self.input.len(), input.len())?;
+        let delta = self.delta(state, input);
+        let j = if self.shared { 0 } else { state };
+        Ok(self.log_norm_in[j] - 0.5 * delta)
+    }
+
+    fn predict(
+        &mut self,
+        state: usize,
+        input: &[f64],
+        mean: &mut [f64],
+        covariance: &mut [f64],
+    ) -> Result<()> {
+        check_state(state, self.n_states)?;
+        let (ni, no) = (self.input.len(), self.output.len());
+        check_len("regression input", ni, input.len())?;
+        check_len("regression mean", no, mean.len())?;
+        check_len("regression covariance", no * no, covariance.len())?;
+        for (k, v) in input.iter().enumerate() {
+            self.diff[k] = v - self.mu_in[state * ni + k];
+        }
+        let j = if self.shared { 0 } else { state };
+        let r = &self.regression[j];
+        for (o, m) in mean.iter_mut().enumerate() {
+            *m = self.mu_out[state * no + o]
+                + r[o * ni..(o + 1) * ni]
+                    .iter()
+                    .zip(&self.diff)
+                    .map(|(a, b)| a * b)
+                    .sum::<f64>();
+        }
+        covariance.copy_from_slice(&self.conditional[j]);
+        Ok(())
+    }
+}
+
+impl Conditional for Gaussian {
+    type Split = GaussianSplit;
+
+    fn conditional(&self, input: &[usize], output: &[usize]) -> Result<GaussianSplit> {
+        check_split(input, output, self.dim)?;
+        let shared = self.kind == CovarianceType::Tied;
+        let n_cov = if shared { 1 } else { self.n_states };
+        let half_log_2pi = 0.5 * input.len() as f64 * (2.0 * PI).ln();
+        let mut split = GaussianSplit {
+            input: input.to_vec(),
+            output: output.to_vec(),
+            n_states: self.n_states,
+            mu_in: Vec::new(),
+            mu_out: Vec::new(),
+            whiten_in: Vec::new(),
+            log_norm_in: Vec::new(),
+            regression: Vec::new(),
+            conditional: Vec::new(),
+            shared,
+            diff: vec![0.0; input.len()],
+        };
+        for i in 0..self.n_states {
+            let mu = self.mean(i);
+            split.mu_in.extend(input.iter().map(|&k| mu[k]));
+            split.mu_out.extend(output.iter().map(|&k| mu[k]));
+        }
+        for j in 0..n_cov {
+            let cov = self.covariance(j);
+            let (r, c) = crate::student_t::regression_of(&cov, input, output)
+                .map_err(|e| e.at_state(j, None))?;
+            let sub = DMatrix::from_fn(input.len(), input.len(), |a, b| cov[(input[a], input[b])]);
+            let l = factor_full(&sub, j, " (sub-block of the input dims)")?;
+            let log_det = 2.0 * l.diagonal().iter().map(|v| v.ln()).sum::<f64>();
+            let mut w = Vec::new();
+            linalg::pack_lower(&linalg::lower_triangular_inverse(&l), &mut w);
+            split.whiten_in.push(w);
+            split.log_norm_in.push(-half_log_2pi - 0.5 * log_det);
+            split.regression.push(r);
+            split.conditional.push(c);
+        }
+        Ok(split)
     }
 }

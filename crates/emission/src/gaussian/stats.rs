@@ -5,7 +5,10 @@ use super::kernels::accumulate_full_avx2_fma;
 use super::Gaussian;
 use crate::error::{EmissionError, Result};
 use crate::linalg;
-use crate::regularisation::{CovarianceRegularisation, MStepEvent, MStepReport, Regularisation};
+use crate::regularisation::{
+    jitter_variances, regularised_covariance, regularised_variance, CovarianceRegularisation,
+    MStepEvent, MStepReport, Regularisation,
+};
 use crate::{CovarianceType, Frames, SufficientStatistics};
 use nalgebra::DMatrix;
 use serde::{Deserialize, Serialize};
@@ -111,128 +114,6 @@ impl Gaussian {
         })
     }
 
-    /// Applies the covariance regularisation to a scatter matrix with weight
-    /// `n` and factors it, jittering if allowed.
-    pub(super) fn regularised_full(
-        scatter: DMatrix<f64>,
-        n: f64,
-        reg: &Regularisation,
-        state: usize,
-        events: &mut Vec<MStepEvent>,
-    ) -> Result<DMatrix<f64>> {
-        let d = scatter.nrows();
-        let mut cov = match reg.covariance() {
-            CovarianceRegularisation::None => scatter / n,
-            CovarianceRegularisation::AddDiagonal(r) => {
-                let mut c = scatter / n;
-                for k in 0..d {
-                    c[(k, k)] += r;
-                }
-                c
-            }
-            CovarianceRegularisation::InverseWishart { scale, dof } => {
-                let mut c = scatter;
-                for k in 0..d {
-                    c[(k, k)] += scale;
-                }
-                c / (n + dof + d as f64 + 1.0)
-            }
-        };
-        cov = (&cov + cov.transpose()) * 0.5;
-        if linalg::cholesky(&cov).is_some() {
-            return Ok(cov);
-        }
-        let mean_var = (cov.trace() / d as f64).abs();
-        let mut jitter = 1e-12
-            * if mean_var > 0.0 && mean_var.is_finite() {
-                mean_var
-            } else {
-                1.0
-            };
-        while jitter <= reg.max_jitter() {
-            let mut c = cov.clone();
-            for k in 0..d {
-                c[(k, k)] += jitter;
-            }
-            if linalg::cholesky(&c).is_some() {
-                events.push(MStepEvent::Jitter {
-                    state,
-                    component: None,
-                    amount: jitter,
-                });
-                return Ok(c);
-            }
-            jitter *= 10.0;
-        }
-        Err(EmissionError::NotPositiveDefinite {
-            state,
-            component: None,
-            detail: format!(
-                " after the M-step ({:?}, total weight {n:.3e}, max jitter {:e})",
-                reg.covariance(),
-                reg.max_jitter()
-            ),
-        })
-    }
-
-    /// Makes the variances of one diagonal/spherical state positive, adding
-    /// jitter to all of them (as [`Self::regularised_full`] does to a full
-    /// diagonal) when allowed, or errors naming `state`.
-    pub(super) fn jitter_variances(
-        vars: &mut [f64],
-        reg: &Regularisation,
-        state: usize,
-        events: &mut Vec<MStepEvent>,
-    ) -> Result<()> {
-        let bad = |vars: &[f64]| vars.iter().position(|v| !(*v > 0.0 && v.is_finite()));
-        let Some(k) = bad(vars) else {
-            return Ok(());
-        };
-        if vars.iter().all(|v| v.is_finite()) {
-            let mean_var = (vars.iter().sum::<f64>() / vars.len() as f64).abs();
-            let mut jitter = 1e-12
-                * if mean_var > 0.0 && mean_var.is_finite() {
-                    mean_var
-                } else {
-                    1.0
-                };
-            while jitter <= reg.max_jitter() {
-                let jittered: Vec<f64> = vars.iter().map(|v| v + jitter).collect();
-                if bad(&jittered).is_none() {
-                    vars.copy_from_slice(&jittered);
-                    events.push(MStepEvent::Jitter {
-                        state,
-                        component: None,
-                        amount: jitter,
-                    });
-                    return Ok(());
-                }
-                jitter *= 10.0;
-            }
-        }
-        Err(EmissionError::NotPositiveDefinite {
-            state,
-            component: None,
-            detail: format!(
-                " (variance {} after the M-step, max jitter {:e}; a constant dimension needs covariance regularisation)",
-                vars[k],
-                reg.max_jitter()
-            ),
-        })
-    }
-
-    /// Variance update for diagonal/spherical structure: scatter `q` (sum of squared
-    /// deviations), weight `n`, `k` pooled dimensions.
-    pub(super) fn regularised_var(q: f64, n: f64, k: f64, d: f64, reg: &Regularisation) -> f64 {
-        let q = q.max(0.0);
-        match reg.covariance() {
-            CovarianceRegularisation::None => q / (n * k),
-            CovarianceRegularisation::AddDiagonal(r) => q / (n * k) + r,
-            CovarianceRegularisation::InverseWishart { scale, dof } => {
-                (q + k * scale) / (k * (n + dof + d + 1.0))
-            }
-        }
-    }
     /// The body of [`Emission::m_step`].
     pub(super) fn maximise(
         &mut self,
@@ -278,7 +159,7 @@ impl Gaussian {
                     if self.kept(i, stats, reg) {
                         continue;
                     }
-                    let cov = Self::regularised_full(
+                    let cov = regularised_covariance(
                         Self::scatter_full(stats, i),
                         stats.weight[i],
                         reg,
@@ -302,7 +183,7 @@ impl Gaussian {
                     }
                 }
                 if n_total >= reg.min_weight().max(f64::MIN_POSITIVE) {
-                    let cov = Self::regularised_full(scatter, n_total, reg, 0, &mut report.events)?;
+                    let cov = regularised_covariance(scatter, n_total, reg, 0, &mut report.events)?;
                     for r in 0..d {
                         for c in 0..d {
                             covs[r * d + c] = cov[(r, c)];
@@ -325,11 +206,11 @@ impl Gaussian {
                     };
                     if self.kind == CovarianceType::Diagonal {
                         for k in 0..d {
-                            covs[i * d + k] = Self::regularised_var(q(k), n, 1.0, d as f64, reg);
+                            covs[i * d + k] = regularised_variance(q(k), n, 1.0, d as f64, reg);
                         }
                     } else {
                         let total: f64 = (0..d).map(|k| q(k).max(0.0)).sum();
-                        covs[i] = Self::regularised_var(total, n, d as f64, d as f64, reg);
+                        covs[i] = regularised_variance(total, n, d as f64, d as f64, reg);
                     }
                 }
                 let per = if self.kind == CovarianceType::Diagonal {
@@ -338,7 +219,7 @@ impl Gaussian {
                     1
                 };
                 for (i, vars) in covs.chunks_exact_mut(per).enumerate() {
-                    Self::jitter_variances(vars, reg, i, &mut report.events)?;
+                    jitter_variances(vars, reg, i, &mut report.events)?;
                 }
             }
         }

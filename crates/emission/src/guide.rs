@@ -1,0 +1,3 @@
+//! # Writing an emission
+//!
+//! (filled in below)
