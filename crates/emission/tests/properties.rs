@@ -7,8 +7,8 @@ mod common;
 use common::*;
 use nalgebra::{DMatrix, DVector};
 use phasekit_emission::{
-    CovarianceType, Emission, EmissionError, Frames, Gaussian, MStepEvent, MixtureEmission,
-    Regularisation, Shape, SufficientStatistics,
+    CovarianceType, Emission, EmissionError, Frames, Gaussian, MStepEvent, Marginal,
+    MixtureEmission, Regularisation, Shape, SufficientStatistics,
 };
 use proptest::prelude::*;
 use rand::seq::SliceRandom;
