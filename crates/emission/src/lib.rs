@@ -12,13 +12,36 @@
 //!   can be built per thread or per sequence and merged in a fixed order;
 //! * [`Emission::m_step`] re-estimates the parameters from merged statistics
 //!   with explicit [`Regularisation`], and reports what it had to do;
-//! * [`Emission::marginal`] restricts every state to a subset of dimensions
-//!   (the human's dimensions of a joint human–robot model);
+//! * [`Emission::initialise`] builds parameters from fixed weights (the
+//!   initialisation of HMMs and mixtures);
 //! * [`Emission::sample_into`] draws a frame from one state.
 //!
+//! Capabilities beyond it, each a small trait ([`capability`]): [`Marginal`]
+//! (the human-only filter), [`ConcatStates`] (the TSC-HMM's union) and
+//! [`Conditional`] (regression).
+//!
 //! Implementations: [`Gaussian`] (full, diagonal, spherical and tied
-//! covariance), [`Categorical`], [`Poisson`] and [`MixtureEmission`] (a mixture of any
-//! emission per state, e.g. hmmlearn's GMMHMM).
+//! covariance), [`Categorical`], [`Poisson`], [`MixtureEmission`] (a mixture of
+//! any emission per state, e.g. hmmlearn's GMMHMM) and, on the per-state route
+//! ([`PerState`] over a [`StateDistribution`]), [`StudentT`]. The guide
+//! [`guide`] ("Writing an emission") shows how to add one.
+//!
+//! ```
+//! use phasekit_emission::{CovarianceType, Emission, Frames, Gaussian, Regularisation, Shape};
+//! use phasekit_emission::rand::SeedableRng;
+//!
+//! // Two states in one dimension, fitted to frames with fixed weights.
+//! let template = Gaussian::standard(CovarianceType::Full, Shape { n_states: 2, dim: 1 })?;
+//! let x = [0.0, 10.0, 0.2, 10.4, -0.2, 9.6];
+//! let frames = Frames::new(&x, 1)?;
+//! let w = [1.0, 0.0, 0.0, 1.0, 1.0, 0.0, 0.0, 1.0, 1.0, 0.0, 0.0, 1.0];
+//! let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0);
+//! let (g, _) = template.initialise(&[(frames, &w)], &Regularisation::none(), &mut rng)?;
+//! assert!((g.mean(1)[0] - 10.0).abs() < 1e-12);
+//! let log_b = g.log_density(frames)?; // T × S
+//! assert!(log_b[0] > log_b[1]);
+//! # Ok::<(), phasekit_emission::EmissionError>(())
+//! ```
 //!
 //! Missing values: a NaN in a frame means "not observed". Every implementation
 //! evaluates such a frame on the marginal of its observed values
@@ -27,7 +50,7 @@
 //! current parameters, so that EM stays exact EM for the observed data; a
 //! frame with nothing observed adds nothing to the emission statistics (its
 //! density does not depend on them). Data without NaN take the plain paths,
-//! bit for bit.
+//! bit for bit. The helpers are public ([`missing`]).
 //!
 //! With an added-diagonal regularisation `Σ = S/n + rI` (the seed paper's), the
 //! expected statistics condition on the maximum-likelihood part `S/n`, so that
@@ -110,7 +133,10 @@ pub trait Emission: Clone + Debug + Send + Sync {
 
     /// Checks that the frames lie in the support of this emission (dimension,
     /// valid symbols or counts). Called once per data set before fitting or
-    /// scoring, so that the hot paths need no checks.
+    /// scoring, so that the hot paths need no checks. NaN (a missing value)
+    /// is not refused by an emission that follows the rule of
+    /// [`Emission::log_density_into`]; one that cannot marginalise refuses it
+    /// here, naming the frame and column.
     fn check_frames(&self, frames: Frames<'_>) -> Result<()> {
         check_dim(self.dim(), frames.dim())
     }
@@ -119,6 +145,11 @@ pub trait Emission: Clone + Debug + Send + Sync {
     ///
     /// `out` must hold `frames.len() · S` values. Frames must have passed
     /// [`Emission::check_frames`]; values outside the support give `-inf`.
+    ///
+    /// The rule for missing values, the same for batch inference and the
+    /// online filter: a frame with NaN is evaluated on the marginal of its
+    /// observed values, `log b_i(x_o) = log ∫ b_i(x) dx_m`, and a frame with
+    /// nothing observed has `log b_i = 0` (see [`missing`]).
     fn log_density_into(&self, frames: Frames<'_>, out: &mut [f64]) -> Result<()>;
 
     /// Allocating convenience form of [`Emission::log_density_into`].

@@ -17,7 +17,7 @@ mod kernels;
 mod missing;
 mod stats;
 
-pub use stats::GaussianStats;
+pub use stats::{weighted_mean_covariance, GaussianStats};
 
 use crate::capability::{check_split, ConcatStates, Conditional, ConditionalSplit};
 use crate::error::{EmissionError, Result};
@@ -371,9 +371,18 @@ impl Gaussian {
         &self.means
     }
 
-    /// Mean of state `i`. Panics if `i ≥ S` (like slice indexing).
+    /// Mean of state `i`.
+    ///
+    /// # Panics
+    /// If `i ≥ S` (like slice indexing); [`Gaussian::state_mean`] is the checked form.
     pub fn mean(&self, i: usize) -> &[f64] {
         &self.means[i * self.dim..(i + 1) * self.dim]
+    }
+
+    /// Mean of state `i`, or the error naming it.
+    pub fn state_mean(&self, i: usize) -> Result<&[f64]> {
+        check_state(i, self.n_states)?;
+        Ok(self.mean(i))
     }
 
     /// Covariances in their native shape (see [`CovarianceType::raw_len`]).
@@ -382,7 +391,9 @@ impl Gaussian {
     }
 
     /// The full `D × D` covariance of state `i`, whatever the structure.
-    /// Panics if `i ≥ S` (like slice indexing).
+    ///
+    /// # Panics
+    /// If `i ≥ S` (like slice indexing).
     pub fn covariance(&self, i: usize) -> DMatrix<f64> {
         let d = self.dim;
         match self.kind {
@@ -397,7 +408,10 @@ impl Gaussian {
         }
     }
 
-    /// The lower Cholesky factor `L` of `Σ_i` (`Σ_i = L Lᵀ`). Panics if `i ≥ S`.
+    /// The lower Cholesky factor `L` of `Σ_i` (`Σ_i = L Lᵀ`).
+    ///
+    /// # Panics
+    /// If `i ≥ S` (like slice indexing).
     pub fn cholesky_factor(&self, i: usize) -> DMatrix<f64> {
         let d = self.dim;
         match self.kind {
@@ -412,7 +426,10 @@ impl Gaussian {
         }
     }
 
-    /// `log|Σ_i|`. Panics if `i ≥ S`.
+    /// `log|Σ_i|`.
+    ///
+    /// # Panics
+    /// If `i ≥ S` (like slice indexing).
     pub fn log_det(&self, i: usize) -> f64 {
         -2.0 * (self.log_norm[i] + 0.5 * self.dim as f64 * (2.0 * PI).ln())
     }

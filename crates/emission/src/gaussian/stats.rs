@@ -359,3 +359,63 @@ impl SufficientStatistics for GaussianStats {
         self.weight.iter().sum()
     }
 }
+
+/// The M-step of one Gaussian state's mean and covariance, written as the
+/// formula (the reference form):
+///
+/// `μ = Σ_t w_t x_t / Σ_t w_t`, `Σ = Σ_t w_t (x_t − μ)(x_t − μ)ᵀ / Σ_t w_t`
+///
+/// for complete frames, before regularisation ([`regularised_covariance`]
+/// applies it to the scatter `n Σ`). [`Gaussian`]'s accumulation (blocked,
+/// packed, about per-state reference points, merged across blocks) and its
+/// M-step compute the same quantities faster; the tests hold them to this
+/// function (`crates/emission/tests/capabilities.rs`).
+///
+/// Errors when the lengths differ, a frame has a missing value, a weight is
+/// negative or not finite, or the total weight is not positive.
+pub fn weighted_mean_covariance(
+    frames: Frames<'_>,
+    weights: &[f64],
+) -> Result<(Vec<f64>, DMatrix<f64>)> {
+    let d = frames.dim();
+    crate::check_len("weights", frames.len(), weights.len())?;
+    if frames.has_missing() {
+        return Err(EmissionError::Unsupported(
+            "weighted_mean_covariance takes complete frames".into(),
+        ));
+    }
+    if let Some(t) = weights.iter().position(|w| !(w.is_finite() && *w >= 0.0)) {
+        return Err(EmissionError::InvalidParameter {
+            name: "weights",
+            reason: format!(
+                "frame {t}: weight {} is not finite and non-negative",
+                weights[t]
+            ),
+        });
+    }
+    let n: f64 = weights.iter().sum();
+    if !(n > 0.0) {
+        return Err(EmissionError::InvalidParameter {
+            name: "weights",
+            reason: "the total weight is not positive".into(),
+        });
+    }
+    let mut mean = vec![0.0; d];
+    for (x, w) in frames.iter().zip(weights) {
+        for k in 0..d {
+            mean[k] += w * x[k];
+        }
+    }
+    for m in mean.iter_mut() {
+        *m /= n;
+    }
+    let mut cov = DMatrix::zeros(d, d);
+    for (x, w) in frames.iter().zip(weights) {
+        for r in 0..d {
+            for c in 0..d {
+                cov[(r, c)] += w * (x[r] - mean[r]) * (x[c] - mean[c]);
+            }
+        }
+    }
+    Ok((mean, cov / n))
+}
