@@ -70,7 +70,7 @@
 //! model.accumulate(frames, &w, &mut stats)?;
 //! model.m_step(&stats, &Regularisation::none())?;
 //! let log_b = model.log_density(frames)?; // T × S
-//! assert!(log_b[2] > log_b[3], "frame 1 belongs to state 1");
+//! assert!(log_b[3] > log_b[2], "frame 1 belongs to state 1");
 //! let mut draw = [0.0; 2];
 //! model.sample_into(1, &mut rng, &mut draw)?;
 //! # Ok::<(), phasekit_emission::EmissionError>(())

@@ -288,7 +288,7 @@ pub fn weighted_kmeans<R: Rng + ?Sized>(
     }
     let draw = |p: &[f64], rng: &mut R| -> usize {
         let total: f64 = live.iter().map(|&t| p[t]).sum();
-        if !(total > 0.0) {
+        if total.is_nan() || total <= 0.0 {
             return live[rng.random_range(0..live.len())];
         }
         let u = rng.random::<f64>() * total;

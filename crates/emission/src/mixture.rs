@@ -383,7 +383,7 @@ impl<E: Emission> Emission for MixtureEmission<E> {
                 }
             }
             let total: f64 = counts.iter().sum();
-            if !(total > 0.0) {
+            if total.is_nan() || total <= 0.0 {
                 return Err(EmissionError::InvalidParameter {
                     name: "initialisation weights",
                     reason: format!("state {i} received no frame with positive weight"),

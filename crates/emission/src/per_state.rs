@@ -435,7 +435,7 @@ impl<D: StateDistribution> Emission for PerState<D> {
         let mut next = self.states.clone();
         for (i, (st, w)) in next.iter_mut().zip(&stats.weights).enumerate() {
             let n: f64 = w.iter().sum();
-            if !(n >= reg.min_weight().max(f64::MIN_POSITIVE)) {
+            if n.is_nan() || n < reg.min_weight().max(f64::MIN_POSITIVE) {
                 report.events.push(MStepEvent::KeptEmptyState {
                     state: i,
                     component: None,

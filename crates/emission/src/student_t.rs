@@ -376,7 +376,7 @@ impl StudentT {
                 sum[k] += w * ut * xr[k];
             }
         }
-        if !(swu > 0.0) {
+        if swu.is_nan() || swu <= 0.0 {
             return Err(EmissionError::plugin(
                 Self::NAME,
                 "no frame with positive weight to fit",
@@ -635,7 +635,7 @@ impl StateDistribution for StudentT {
             let mut r = MStepReport::default();
             let next = model.ecme_step(frames, weights, reg, &mut r)?;
             let obj = next.weighted_log_likelihood(frames, weights)?;
-            if !(obj > best) {
+            if obj.is_nan() || obj <= best {
                 break;
             }
             let gain = obj - best;

@@ -127,7 +127,7 @@ impl StateDistribution for Laplace {
             let m = weighted_median(&mut pairs);
             let total: f64 = pairs.iter().map(|p| p.1).sum();
             let s = pairs.iter().map(|(v, w)| w * (v - m).abs()).sum::<f64>() / total;
-            if !(s > 0.0) {
+            if s.is_nan() || s <= 0.0 {
                 return Err(EmissionError::plugin(
                     "Laplace",
                     format!("dimension {k} is constant over the state's frames"),

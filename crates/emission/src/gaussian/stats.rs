@@ -394,7 +394,7 @@ pub fn weighted_mean_covariance(
         });
     }
     let n: f64 = weights.iter().sum();
-    if !(n > 0.0) {
+    if n.is_nan() || n <= 0.0 {
         return Err(EmissionError::InvalidParameter {
             name: "weights",
             reason: "the total weight is not positive".into(),
