@@ -170,14 +170,14 @@ impl Emission for Poisson {
                     continue;
                 }
                 let mut acc = -log_fact;
-                for k in 0..d {
-                    if x[k].is_nan() {
+                for (k, &xk) in x.iter().enumerate() {
+                    if xk.is_nan() {
                         continue;
                     }
                     let lam = self.rates[i * d + k];
                     // 0 · log 0 = 0: a zero count has probability e^{−λ} even when λ = 0.
-                    if x[k] > 0.0 {
-                        acc += x[k] * self.log_rates[i * d + k];
+                    if xk > 0.0 {
+                        acc += xk * self.log_rates[i * d + k];
                     }
                     acc -= lam;
                 }
@@ -218,13 +218,9 @@ impl Emission for Poisson {
             for i in 0..s {
                 let w = weights[t * s + i];
                 stats.weight[i] += w;
-                for k in 0..d {
+                for (k, &xk) in x.iter().enumerate() {
                     // A missing count adds its expectation `λ_ik` under the current model.
-                    let v = if x[k].is_nan() {
-                        self.rates[i * d + k]
-                    } else {
-                        x[k]
-                    };
+                    let v = if xk.is_nan() { self.rates[i * d + k] } else { xk };
                     stats.sum[i * d + k] += w * v;
                 }
             }

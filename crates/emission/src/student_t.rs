@@ -598,8 +598,8 @@ impl StateDistribution for StudentT {
             .sample(rng);
         let s = (self.dof / g).sqrt();
         packed_lower_mul(&self.factor, &z, out);
-        for k in 0..d {
-            out[k] = self.mean[k] + s * out[k];
+        for (o, m) in out.iter_mut().zip(&self.mean) {
+            *o = m + s * *o;
         }
     }
 

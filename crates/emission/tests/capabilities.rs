@@ -2,6 +2,9 @@
 //! per-state route's own checks, the mixture's initialisation, and the
 //! messages a user reads.
 
+// Index loops mirror the formulas they check (several arrays indexed alike).
+#![allow(clippy::needless_range_loop)]
+
 use nalgebra::{DMatrix, DVector};
 use phasekit_emission::{
     Categorical, ConcatStates, Conditional, ConditionalSplit, CovarianceType, Emission,
