@@ -220,7 +220,11 @@ impl Emission for Poisson {
                 stats.weight[i] += w;
                 for (k, &xk) in x.iter().enumerate() {
                     // A missing count adds its expectation `λ_ik` under the current model.
-                    let v = if xk.is_nan() { self.rates[i * d + k] } else { xk };
+                    let v = if xk.is_nan() {
+                        self.rates[i * d + k]
+                    } else {
+                        xk
+                    };
                     stats.sum[i * d + k] += w * v;
                 }
             }

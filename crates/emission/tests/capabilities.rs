@@ -335,6 +335,16 @@ fn mixture_initialisation_separates_the_components_of_every_state() {
             assert!((mix.weights()[state * 2 + k] - 0.5).abs() < 0.05);
         }
     }
+    // The old rule, one accumulation and M-step from the template (now only
+    // the default of Emission::initialise), leaves every state's components
+    // equal, bit for bit: the defect this initialisation repairs.
+    let (old, _) =
+        phasekit_emission::fit_weighted(&template, &[(frames, &w)], &Regularisation::none())
+            .unwrap();
+    for state in 0..2 {
+        let c = old.components(state);
+        assert_eq!(c.mean(0), c.mean(1), "state {state}");
+    }
     // Restarts differ through the generator; the same seed gives the same result.
     let again = template
         .initialise(

@@ -475,8 +475,7 @@ fn gaussian_stats_of_another_model_are_refused() {
             continue; // same shape, only a different reference point: accumulation is legitimate
         }
         assert!(
-            base.accumulate(frames, &[0.5; 6 * 2], &mut theirs)
-                .is_err(),
+            base.accumulate(frames, &[0.5; 6 * 2], &mut theirs).is_err(),
             "{other:?}"
         );
         let mut m = base.clone();
