@@ -18,7 +18,7 @@
 use crate::conditional::{check_io, Conditional};
 use crate::error::Result;
 use nalgebra::DMatrix;
-use phasekit_emission::{Emission, EmissionError, Frames, Gaussian};
+use phasekit_emission::{Emission, EmissionError, Frames, Gaussian, Marginal};
 use phasekit_gmm::Gmm;
 use phasekit_hmm::{ForwardFilter, Hmm};
 use serde::{Deserialize, Serialize};
