@@ -33,10 +33,18 @@ pub struct NamedMethod {
 pub fn parse_method(spec: &str, defaults: &PresetOptions) -> Result<NamedMethod, String> {
     let (name, rest) = spec.split_once(':').unwrap_or((spec, ""));
     let mut o = defaults.clone();
+    let mut seen: Vec<&str> = Vec::new();
     for kv in rest.split(',').filter(|s| !s.is_empty()) {
         let (k, v) = kv
             .split_once('=')
             .ok_or_else(|| format!("`{kv}` in `{spec}` is not key=value"))?;
+        // A repeated key is a mistake (which one was meant?), not "the last wins".
+        if seen.contains(&k) {
+            return Err(format!(
+                "`{k}` given twice in `{spec}`: give every setting once"
+            ));
+        }
+        seen.push(k);
         let bad = |e: &dyn std::fmt::Display| format!("`{kv}` in `{spec}`: {e}");
         match k {
             "states" if v == "auto" => o.auto_states = true,
@@ -381,8 +389,22 @@ fn run_seed(
             frames += 1;
         }
     }
+    if frames == 0 {
+        return Err(
+            "no test frame has the robot's position fully observed: nothing to score".into(),
+        );
+    }
+    let mse = se / frames as f64;
+    if !mse.is_finite() {
+        // An overflow must not pass as a result (nor print as a blank): it is a failure.
+        return Err(format!(
+            "the MSE is not finite ({mse}): the squared errors overflow at unit scale {} \
+             (use a smaller --unit-scale), or a prediction is not finite",
+            protocol.unit_scale
+        ));
+    }
     Ok(SeedResult {
-        mse: se / frames as f64,
+        mse,
         fit_seconds,
         predict_seconds,
         frames,
