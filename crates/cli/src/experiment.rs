@@ -130,6 +130,9 @@ pub struct Removal {
     pub mode: RemovalMode,
 }
 
+/// A seed's training and test features (`T × D` each) with values removed.
+type SeedFeatures = (Vec<Vec<f64>>, Vec<Vec<f64>>);
+
 /// Frames of an occlusion.
 const OCCLUSION_FRAMES: usize = 10;
 
@@ -200,7 +203,7 @@ impl Removal {
         spec: &FeatureSpec,
         seed: u64,
         idx: &[usize],
-    ) -> Result<(Vec<Vec<f64>>, Vec<Vec<f64>>), String> {
+    ) -> Result<SeedFeatures, String> {
         let one = |t: &Table, human_only: bool, k: u64| -> Result<Vec<f64>, String> {
             let (_, h, r) = spec.layout(t).map_err(|e| e.to_string())?;
             let sides: Vec<&[usize]> = if human_only { vec![&h] } else { vec![&h, &r] };
@@ -323,7 +326,7 @@ fn run_seed(
     method: &Method,
     train_idx: &[usize],
     protocol: &Protocol,
-    removed: Option<&(Vec<Vec<f64>>, Vec<Vec<f64>>)>,
+    removed: Option<&SeedFeatures>,
 ) -> Result<SeedResult, String> {
     let layout = &prep.layout;
     let d = layout.features.len();

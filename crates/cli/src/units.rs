@@ -183,7 +183,7 @@ mod tests {
         assert_eq!(sig4(59.0612), "59.06");
         assert_eq!(sig4(633.744), "633.74");
         assert_eq!(sig4(1082.67), "1082.67");
-        assert_eq!(sig4(1.2345e-7), "1.234e-7");
+        assert_eq!(sig4(1.2346e-7), "1.235e-7");
         assert_eq!(sig4(3.1e12), "3.100e12");
         assert_eq!(sig4(0.0), "0.00");
         assert_eq!(sig4(-0.0001), "-0.0001000");

@@ -126,11 +126,11 @@ fn learned_table(mf: &ModelFile, tests: &[Table], truth: &[Interaction]) -> Resu
     let mut out = String::from(
         "| state | human hand x, y, z (cm) | robot hand x, y, z (cm) | expected stay (frames) | true phases of its test frames |\n|---:|---|---|---:|---|\n",
     );
-    for i in 0..s {
+    for (i, votes) in votes.iter().enumerate() {
         let stay = 1.0 / (1.0 - h.transition()[i * s + i]).max(1e-12);
-        let total: usize = votes[i].iter().sum();
+        let total: usize = votes.iter().sum();
         // Every phase with at least a fifth of the state's frames, largest first.
-        let mut shares: Vec<(usize, usize)> = votes[i]
+        let mut shares: Vec<(usize, usize)> = votes
             .iter()
             .copied()
             .enumerate()

@@ -414,7 +414,7 @@ pub fn run(a: &EvaluateArgs) -> Result<()> {
             .skip(1)
             .find(|p| p.as_os_str().is_empty() || p.exists())
             .is_some_and(|p| p.as_os_str().is_empty() || p.is_dir());
-        if !dir.is_dir() && !(folder_form && creatable) {
+        if !(dir.is_dir() || folder_form && creatable) {
             bail!(
                 "-o {}: folder {} does not exist",
                 o.display(),

@@ -69,6 +69,7 @@ pub fn segmentation_svg(mf: &ModelFile, table: &Table, unit: &Unit) -> Result<St
         .enumerate()
         .map(|(i, &t)| (buckets.of(t), seg.clusters.get(i).copied().flatten()))
         .collect();
+    ticks.sort_unstable();
     ticks.dedup();
     let mut svg = String::new();
     {
