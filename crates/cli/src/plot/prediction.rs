@@ -255,20 +255,39 @@ pub fn prediction_svg(mf: &ModelFile, table: &Table, unit: &Unit) -> Result<Stri
                     .draw_series(LineSeries::new(run, BLACK.stroke_width(2)))
                     .map_err(draw_err)?;
             }
-            for run in line(&p.mean) {
-                // What the regularisation alone would give around the prediction.
-                let half = 2.0 * reg[i].sqrt();
-                if half > 0.0 {
-                    for sign in [1.0, -1.0] {
-                        let shifted: Vec<(f64, f64)> =
-                            run.iter().map(|&(t, v)| (t, v + sign * half)).collect();
-                        // Solid and thin: a dashed zigzag of a decimated line
-                        // would be thousands of dashes.
-                        chart
-                            .draw_series(LineSeries::new(shifted, floor_colour.stroke_width(1)))
-                            .map_err(draw_err)?;
-                    }
+            // What the regularisation alone would give around the prediction: its
+            // envelope over every bucket (one point per frame when not decimated).
+            let half = 2.0 * reg[i].sqrt();
+            if half > 0.0 {
+                let upper = (0..nb).flat_map(|b| {
+                    let m = p.mean[b];
+                    edge(
+                        b,
+                        if m.is_empty() {
+                            f64::NAN
+                        } else {
+                            m.max.1 + half
+                        },
+                    )
+                });
+                let lower = (0..nb).flat_map(|b| {
+                    let m = p.mean[b];
+                    edge(
+                        b,
+                        if m.is_empty() {
+                            f64::NAN
+                        } else {
+                            m.min.1 - half
+                        },
+                    )
+                });
+                for run in finite_runs(upper).into_iter().chain(finite_runs(lower)) {
+                    chart
+                        .draw_series(LineSeries::new(run, floor_colour.stroke_width(1)))
+                        .map_err(draw_err)?;
                 }
+            }
+            for run in line(&p.mean) {
                 chart
                     .draw_series(LineSeries::new(run, blue.stroke_width(2)))
                     .map_err(draw_err)?;

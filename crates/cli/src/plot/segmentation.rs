@@ -139,6 +139,7 @@ pub fn segmentation_svg(mf: &ModelFile, table: &Table, unit: &Unit) -> Result<St
             // Transition frames: ticks along the top, coloured by cluster.
             let tick = (y1 - y0) * 0.06;
             let mut clusters_seen: Vec<Option<usize>> = Vec::new();
+            let first_tick_entry = entries.len();
             for &(b, c) in &ticks {
                 let colour = c.map_or(BLACK, cluster_colour);
                 let (a, e) = buckets.span(b);
@@ -159,6 +160,8 @@ pub fn segmentation_svg(mf: &ModelFile, table: &Table, unit: &Unit) -> Result<St
                     ));
                 }
             }
+            // Clusters in the legend by number, not by first appearance.
+            entries[first_tick_entry..].sort_by(|a, b| a.0.cmp(&b.0));
             for (j, &k) in dims.iter().enumerate() {
                 let style = [BLACK, RGBColor(90, 90, 90), RGBColor(160, 160, 160)][j % 3];
                 let mut per_bucket = vec![MinMax::new(); buckets.len()];
@@ -177,10 +180,13 @@ pub fn segmentation_svg(mf: &ModelFile, table: &Table, unit: &Unit) -> Result<St
             if i > 0 {
                 entries.retain(|(_, sw)| matches!(sw, Swatch::Line(..)));
             }
-            let notes: Vec<String> = if i == 0 {
-                buckets.note().into_iter().collect()
-            } else {
-                Vec::new()
+            let notes: Vec<String> = match buckets.note() {
+                Some(n) if i == 0 => vec![
+                    n,
+                    "Bands: each bucket's most frequent state; ticks: one per bucket and transition cluster."
+                        .into(),
+                ],
+                _ => Vec::new(),
             };
             draw_legend(&legend_area, &entries, &notes)?;
         }
