@@ -349,6 +349,7 @@ Examples:
   phasekit evaluate --data nuisi --action handshake --methods hmm,hmm:states=7,tsc-hmm --seeds 20
   phasekit evaluate --data nuisi --train-size 1000 --methods hmm   # all training demos, one run
   phasekit evaluate --data nuisi --format json -o results          # writes results.md and results.json
+  phasekit evaluate --data angles --human 'h_*' --robot 'r_*' --unit rad --unit-scale 1
 
 Protocol: seed s trains on a random subset of the training demonstrations (all but
 two by default) and predicts every test_* demonstration from the human's frames.
@@ -389,9 +390,9 @@ pub struct EvaluateArgs {
     /// Training demonstrations per seed [default: all but two]; ≥ their number: one run on all
     #[arg(long, value_name = "N")]
     pub train_size: Option<usize>,
-    /// Factor from data units to reported units (100: metres → cm, MSE in cm²)
-    #[arg(long, value_name = "X", default_value_t = 100.0)]
-    pub unit_scale: f64,
+    /// Reported unit (--unit, --unit-scale).
+    #[command(flatten)]
+    pub unit: crate::units::UnitArgs,
     /// Also write PREFIX.md and PREFIX.json (a folder DIR/: DIR/evaluate.md and .json), both or neither
     #[arg(short, long, value_name = "PREFIX")]
     pub output: Option<PathBuf>,
@@ -461,6 +462,9 @@ pub struct PlotArgsCommon {
     /// The SVG file to write
     #[arg(short, long, value_name = "PATH")]
     pub output: PathBuf,
+    /// Unit of the axes (--unit, --unit-scale).
+    #[command(flatten)]
+    pub unit: crate::units::UnitArgs,
 }
 
 /// Arguments of `plot states`.
@@ -487,6 +491,9 @@ pub struct PlotStatesArgs {
     /// The SVG file to write
     #[arg(short, long, value_name = "PATH")]
     pub output: PathBuf,
+    /// Unit of the axes (--unit, --unit-scale).
+    #[command(flatten)]
+    pub unit: crate::units::UnitArgs,
 }
 
 const DEMO_EXAMPLES: &str = "\
@@ -495,9 +502,11 @@ Examples:
   phasekit demo -o /tmp/demo --seed 3
 
 Generates two-agent interactions with known phases (idle, reach, shake, retract),
-fits hmm and tsc-hmm on 12 of them, predicts the other 4 from the human's hand,
-compares with a constant-pose baseline, checks the transitions found against the
-true phase boundaries, and writes the data, the models and three plots to the folder.";
+fits hmm, hmm:states=7 (the control with as many states as the TSC-HMM) and tsc-hmm
+on 12 of them, predicts the other 4 from the human's hand, compares with a
+constant-pose baseline and over --seeds random training subsets, checks the
+transitions found against the true phase boundaries, and writes the data, the
+models and three plots to the folder (replacing an earlier demo's folder only).";
 
 /// `plot states --view` values.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -525,4 +534,7 @@ pub struct DemoArgs {
     /// Test demonstrations
     #[arg(long, value_name = "N", default_value_t = 4)]
     pub test: usize,
+    /// Random training subsets (all but two demonstrations each) of the comparison over seeds; 0: none
+    #[arg(long, value_name = "N", default_value_t = 10)]
+    pub seeds: usize,
 }

@@ -15,6 +15,7 @@ pub mod npy;
 pub mod output;
 pub mod pipeline;
 pub mod plot;
+pub mod units;
 
 pub use error::{CliError, Result};
 

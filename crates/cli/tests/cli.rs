@@ -665,14 +665,15 @@ fn demo_runs_and_writes_three_pictures() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("demo");
     phasekit()
-        .args(["demo", "--train", "8", "--test", "2", "-o"])
+        .args(["demo", "--train", "8", "--test", "2", "--seeds", "2", "-o"])
         .arg(&out)
         .assert()
         .success()
         .stdout(
             predicate::str::contains("| constant mean pose |")
                 .and(predicate::str::contains("| hmm | 4 |"))
-                .and(predicate::str::contains("Next:")),
+                .and(predicate::str::contains("| hmm:states=7 | 7 |"))
+                .and(predicate::str::contains("\nNext (")),
         );
     for svg in ["segmentation.svg", "prediction.svg", "states.svg"] {
         let text = std::fs::read_to_string(out.join(svg)).unwrap();
@@ -681,7 +682,9 @@ fn demo_runs_and_writes_three_pictures() {
             "{svg} is an SVG"
         );
     }
-    ModelFile::load(&out.join("tsc-hmm.json")).unwrap();
+    for model in ["hmm.json", "hmm7.json", "tsc-hmm.json"] {
+        ModelFile::load(&out.join(model)).unwrap();
+    }
 }
 
 #[test]

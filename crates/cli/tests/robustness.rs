@@ -92,7 +92,7 @@ fn run(dir: &Path, args: &[&str], output: Option<&str>) -> Outcome {
 /// The interesting part of a `fit --format json` report.
 fn fit_summary(r: &serde_json::Value) -> String {
     let n = r["states"].as_u64().unwrap_or(0);
-    let converged = r["converged"] == true && r["stopped_on_decrease"] != true;
+    let converged = r["stop"] == "converged";
     let mut parts = vec![format!(
         "fits: {n} state{}, {} iterations{}",
         if n == 1 { "" } else { "s" },
@@ -131,7 +131,7 @@ fn fit_summary(r: &serde_json::Value) -> String {
     if let Some(s) = r["transition_segments"].as_u64() {
         parts.push(format!("{s} transition segments"));
     }
-    if r["stopped_on_decrease"] == true {
+    if r["stop"] == "log-likelihood fell" {
         parts.push("stopped because the log-likelihood fell".into());
     }
     if let Some(w) = r["warnings"].as_array() {

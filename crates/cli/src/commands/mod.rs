@@ -234,6 +234,11 @@ fn name_starts(p: &Path, prefix: &str) -> bool {
         .is_some_and(|n| n.starts_with(prefix))
 }
 
+/// Whether a folder holds `train_*` demonstration files (CSV or NPY) itself.
+pub fn has_train_files(dir: &Path) -> Result<bool> {
+    Ok(!list_dir(dir, |p| is_table_file(p) && name_starts(p, "train_"))?.is_empty())
+}
+
 /// Action folders (subfolders holding `train_*` files) of a folder.
 pub fn action_dirs(dir: &Path) -> Result<Vec<PathBuf>> {
     let subdirs = list_dir(dir, |p| p.is_dir())?;
