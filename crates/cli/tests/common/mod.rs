@@ -71,3 +71,28 @@ pub fn parse_csv(text: &str) -> (Vec<String>, Vec<Vec<f64>>) {
         .collect();
     (header, rows)
 }
+
+/// The header, the numeric rows and the statuses of `phasekit stream`'s
+/// output (whose last column is `status`), with or without a header line.
+pub fn parse_stream(text: &str, with_header: bool) -> (Vec<String>, Vec<Vec<f64>>, Vec<String>) {
+    let mut lines = text.lines();
+    let header: Vec<String> = if with_header {
+        let h: Vec<String> = lines
+            .next()
+            .unwrap()
+            .split(',')
+            .map(str::to_string)
+            .collect();
+        assert_eq!(h.last().map(String::as_str), Some("status"), "{h:?}");
+        h[..h.len() - 1].to_vec()
+    } else {
+        Vec::new()
+    };
+    let (mut rows, mut status) = (Vec::new(), Vec::new());
+    for l in lines {
+        let (values, s) = l.rsplit_once(',').unwrap();
+        rows.push(values.split(',').map(|c| c.parse().unwrap()).collect());
+        status.push(s.to_string());
+    }
+    (header, rows, status)
+}
