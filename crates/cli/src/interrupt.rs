@@ -20,13 +20,18 @@ use std::sync::Mutex;
 /// Temporary files being written.
 static TEMPORARIES: Mutex<Vec<PathBuf>> = Mutex::new(Vec::new());
 
-/// Registers a temporary file to remove on interruption (installs the
-/// handlers the first time).
-pub fn register(path: &Path) {
+/// Creates a temporary file with `create` (which returns it and its path) and
+/// registers it for removal on interruption, installing the handlers the first
+/// time. The registry is locked while the file is created, so that a signal
+/// arriving meanwhile removes it too (the cleanup waits for the lock).
+pub fn create_registered<T>(
+    create: impl FnOnce() -> std::io::Result<(T, PathBuf)>,
+) -> std::io::Result<(T, PathBuf)> {
     install();
-    if let Ok(mut v) = TEMPORARIES.lock() {
-        v.push(path.to_path_buf());
-    }
+    let mut registry = TEMPORARIES.lock().unwrap_or_else(|p| p.into_inner());
+    let (t, path) = create()?;
+    registry.push(path.clone());
+    Ok((t, path))
 }
 
 /// Forgets a temporary file (renamed into place, or removed).

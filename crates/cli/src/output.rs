@@ -321,12 +321,14 @@ impl Temporary {
             .file_name()
             .and_then(|n| n.to_str())
             .unwrap_or("output");
-        let file = tempfile::Builder::new()
-            .prefix(&format!(".{name}."))
-            .suffix(".tmp")
-            .tempfile_in(&dir)?;
-        let path = file.path().to_path_buf();
-        crate::interrupt::register(&path);
+        let (file, path) = crate::interrupt::create_registered(|| {
+            let file = tempfile::Builder::new()
+                .prefix(&format!(".{name}."))
+                .suffix(".tmp")
+                .tempfile_in(&dir)?;
+            let path = file.path().to_path_buf();
+            Ok((file, path))
+        })?;
         Ok(Temporary {
             file: Some(file),
             path,

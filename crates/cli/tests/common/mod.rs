@@ -9,9 +9,32 @@ use phasekit_tsc::synthetic;
 use std::path::{Path, PathBuf};
 use tempfile::TempDir;
 
-/// The `phasekit` binary of this build.
+/// The `phasekit` binary of this build (or, to show that a test fails on an
+/// older build, the one `PHASEKIT_BIN` names).
 pub fn phasekit() -> Command {
-    Command::cargo_bin("phasekit").expect("the phasekit binary is built")
+    match std::env::var_os("PHASEKIT_BIN") {
+        Some(bin) => Command::new(bin),
+        None => Command::cargo_bin("phasekit").expect("the phasekit binary is built"),
+    }
+}
+
+/// The path of the binary [`phasekit`] runs.
+pub fn phasekit_path() -> PathBuf {
+    match std::env::var_os("PHASEKIT_BIN") {
+        Some(bin) => PathBuf::from(bin),
+        None => assert_cmd::cargo::cargo_bin("phasekit"),
+    }
+}
+
+/// Fits `method` to the folder `data` into `model` (quietly), asserting success.
+pub fn fit_model(data: &Path, method: &str, model: &Path) {
+    phasekit()
+        .args(["fit", "--method", method, "--data"])
+        .arg(data)
+        .arg("-o")
+        .arg(model)
+        .assert()
+        .success();
 }
 
 /// Writes `frames` (`T × 6`, the columns of [`synthetic::COLUMNS`]) as a CSV
@@ -95,4 +118,9 @@ pub fn parse_stream(text: &str, with_header: bool) -> (Vec<String>, Vec<Vec<f64>
         status.push(s.to_string());
     }
     (header, rows, status)
+}
+
+/// A model file's JSON.
+pub fn model_json(path: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
 }
