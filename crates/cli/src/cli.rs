@@ -138,9 +138,8 @@ fn parse_threads(s: &str) -> Result<usize, String> {
     }
     if n > max {
         return Err(format!(
-            "{n} threads cannot help: this machine runs {} at once, and phasekit takes at most {max} \
-             (more only adds the cost of starting them; the results do not depend on the number)",
-            cores()
+            "{n} threads cannot help: phasekit takes at most 4 per core of this machine (and 64 on any) \
+             — more only adds the cost of starting them, and the results do not depend on the number"
         ));
     }
     Ok(n)

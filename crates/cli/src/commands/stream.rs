@@ -329,11 +329,11 @@ fn header_layout(
         .collect();
     let hint = if !case.is_empty() {
         format!(
-            " (names must match exactly, case included: {}; rename the columns or map them with --columns)",
+            "; names must match exactly, case included ({}): rename the columns or map them with --columns",
             case.join(", ")
         )
     } else if mapping.is_none() {
-        " (to read other columns as the model's, name them in the model's order with --columns)"
+        "; to read other columns as the model's, name them in the model's order with --columns"
             .into()
     } else {
         String::new()
@@ -344,7 +344,7 @@ fn header_layout(
         "the model's human columns"
     };
     Err(CliError::new(format!(
-        "stdin line {line_no}: the header ({}) lacks {what} {} ({by} needs {}){hint}; nothing was predicted",
+        "stdin line {line_no}: the header ({}) lacks {what} {}: {by} needs {}{hint}; nothing was predicted",
         name_list(&header),
         missing
             .iter()
