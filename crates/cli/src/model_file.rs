@@ -430,7 +430,8 @@ fn check_scale(what: &str, g: &Gaussian) -> Result<()> {
         let (mean, cov) = (g.mean(k), g.covariance(k));
         for (d, m) in mean.iter().enumerate() {
             let sd = cov[(d, d)].sqrt();
-            if !m.is_finite() || !(m.abs() <= MAX_MEAN_TO_SPREAD * sd) {
+            let resolvable = m.is_finite() && sd > 0.0 && m.abs() <= MAX_MEAN_TO_SPREAD * sd;
+            if !resolvable {
                 return Err(CliError::new(format!(
                     "{what}, state {k}, dimension {d}: mean {m:e} with standard deviation {sd:e}: \
                      floating-point numbers cannot resolve a state that narrow that far from zero"

@@ -178,7 +178,7 @@ impl FrameStatus {
         }
         match (score(log_predictive, observed), &mf.novelty) {
             (None, _) => FrameStatus::Unobserved,
-            (Some(s), Some(n)) if !(s >= n.threshold) => FrameStatus::OutOfDistribution,
+            (Some(s), Some(n)) if s.is_nan() || s < n.threshold => FrameStatus::OutOfDistribution,
             _ => FrameStatus::Ok,
         }
     }

@@ -373,7 +373,7 @@ fn empty_state_case() -> Row {
         .collect();
     let set = SequenceSet::new(&data, 2).unwrap();
     let means = vec![0.0, 0.0, 0.3, 0.0, 1e3, 1e3];
-    let covs = vec![0.01, 0.0, 0.0, 0.01].repeat(3);
+    let covs = [0.01, 0.0, 0.0, 0.01].repeat(3);
     let init = Hmm::new(
         vec![0.5, 0.3, 0.2],
         vec![0.8, 0.1, 0.1, 0.1, 0.8, 0.1, 0.1, 0.1, 0.8],

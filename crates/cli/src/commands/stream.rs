@@ -76,7 +76,7 @@ pub struct Latency {
 
 impl LatencySketch {
     fn bucket(v: f64) -> usize {
-        if !(v >= SKETCH_LOW) {
+        if v.is_nan() || v < SKETCH_LOW {
             return 0;
         }
         let b = ((v / SKETCH_LOW).ln() / SKETCH_GROWTH.ln()).floor() as usize + 1;
