@@ -165,9 +165,15 @@ fn the_seed_corpus_reads_as_expected() {
         // Hostile values: finite predictions, every frame judged, none failing.
         for v in [1e200, -1e308, f64::MAX, 1e-300, f64::NAN, 0.0] {
             let (mean, cov) = s.step(&vec![v; n], true).unwrap();
-            assert!(mean.iter().chain(cov.unwrap()).all(|x| x.is_finite()), "{v}");
+            assert!(
+                mean.iter().chain(cov.unwrap()).all(|x| x.is_finite()),
+                "{v}"
+            );
         }
-        assert!(s.step(&vec![0.0; n + 1], false).is_err(), "a frame of the wrong length");
+        assert!(
+            s.step(&vec![0.0; n + 1], false).is_err(),
+            "a frame of the wrong length"
+        );
     }
 }
 
