@@ -1,8 +1,6 @@
 //! `phasekit fit`.
 
-use super::{
-    check_lengths, column_hint, feature_spec, fit_files, preset_options, read_tables, setup_threads,
-};
+use super::{check_lengths, column_hint, feature_spec, fit_files, preset_options, setup_threads};
 use crate::bail;
 use crate::cli::{FitArgs, Format};
 use crate::data::{FeatureSpec, Layout, Table};
@@ -155,6 +153,9 @@ pub fn fit_tables(
     let (layout, mut seqs) = training_features(tables, spec, defaults)?;
     check_lengths(tables, &named.method, &named.label)?;
     let d = layout.features.len();
+    let frames: usize = tables.iter().map(Table::n_rows).sum();
+    crate::data::check_fit_size(d, frames, super::min_frames(&named.method).0)
+        .map_err(CliError::new)?;
     let standardisation = standardise.then(|| Standardisation::fit(&seqs, d));
     if let Some(s) = &standardisation {
         let all: Vec<usize> = (0..d).collect();
@@ -184,7 +185,7 @@ pub fn fit_tables(
             CliError::new(msg)
         })?;
     summary.warnings = data_warnings(&seqs, &layout.features, summary.regularisation);
-    Ok(ModelFile::new(
+    ModelFile::new(
         layout,
         spec.clone(),
         standardisation,
@@ -194,7 +195,8 @@ pub fn fit_tables(
         },
         summary,
         model,
-    ))
+    )
+    .calibrated(&seqs)
 }
 
 /// Runs `phasekit fit`.
@@ -207,7 +209,11 @@ pub fn run(a: &FitArgs) -> Result<()> {
     let options = preset_options(&a.model)?;
     let (spec, defaults) = feature_spec(&a.columns);
     let files = fit_files(&a.data, a.action.as_deref())?;
-    let tables = read_tables(&files, true)?;
+    // Only the selected columns are parsed (a text column such as a timestamp does not matter).
+    let patterns = [spec.human.clone(), spec.robot.clone()].concat();
+    let tables =
+        crate::inputs::read_tables_select(&files, true, crate::data::Select::Globs(&patterns))
+            .map_err(|e| column_hint(e, defaults))?;
     let frames: usize = tables.iter().map(Table::n_rows).sum();
     let bar = output::spinner(&format!(
         "fitting {} to {} demonstrations ({frames} frames)",
