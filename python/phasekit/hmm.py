@@ -414,36 +414,50 @@ class _BaseHMM(BaseEstimator):
         """
         X = self._validate_X(X, fitting=True)
         lengths = as_lengths(lengths, X.shape[0])
+        self._fit_restarts(X, lengths, None)
+        return self
+
+    def _fit_restarts(self, X, lengths, estep):
         restarts = getattr(self, "restarts", 1)
-        if not isinstance(restarts, (int, np.integer)) or restarts < 1:
+        if isinstance(restarts, bool) or not isinstance(restarts, (int, np.integer)) or restarts < 1:
             raise ValueError(f"restarts must be a positive integer, got {restarts!r}")
         if restarts == 1:
-            self._fit_once(X, lengths, self.random_state)
-            return self
+            self._fit_once(X, lengths, self.random_state, estep)
+            return
         seeds = check_random_state(self.random_state).randint(np.iinfo(np.int32).max, size=restarts)
         snapshot = self._snapshot()
         best = None
         for r in range(restarts):
             self._restore(snapshot)
-            self._fit_once(X, lengths, self.random_state if r == 0 else int(seeds[r]))
+            self._fit_once(X, lengths, self.random_state if r == 0 else int(seeds[r]), estep)
             final = self.monitor_.history[-1] if self.monitor_.history else -np.inf
             if best is None or final > best[0]:
                 best = (final, self._snapshot(), copy.deepcopy(self.monitor_))
         self._restore(best[1])
         self.monitor_ = best[2]
-        return self
 
     # -- the EM loop --------------------------------------------------------------
 
-    def _fit_once(self, X, lengths, random_state):
+    def _fit_once(self, X, lengths, random_state, estep=None):
+        """Initialises from ``X`` and runs EM; ``estep(estimator)`` returns the
+        :class:`phasekit._core.Statistics` of the data under the estimator's
+        current parameters (default: all of ``X`` in this process;
+        :func:`phasekit.dask.fit` passes one that maps over a Dask bag)."""
         self._init(X, lengths, random_state)
         self._check()
+        if estep is None:
+            data = _core.Sequences(X, lengths)
+            threads = n_threads(getattr(self, "n_jobs", None))
+
+            def estep(est):
+                return est._to_core().expected_statistics(data, threads)
+
+        self._em(estep)
+
+    def _em(self, estep):
         self.monitor_._reset()
-        data = _core.Sequences(X, lengths)
-        threads = n_threads(getattr(self, "n_jobs", None))
         for _ in range(self.n_iter):
-            stats = self._to_core().expected_statistics(data, threads)
-            arrays = stats.arrays()
+            arrays = estep(self).arrays()
             curr_logprob = arrays["log_likelihood"]
             lower_bound = self._compute_lower_bound(curr_logprob)
             self._do_mstep(arrays)
@@ -454,6 +468,10 @@ class _BaseHMM(BaseEstimator):
                 _log.warning(
                     "Some rows of transmat_ have zero sum because no transition from the state was ever observed."
                 )
+
+    def _estep_local(self, data, threads):
+        """The E-step over a :class:`phasekit._core.Sequences` in this process."""
+        return self._to_core().expected_statistics(data, threads)
 
     def _compute_lower_bound(self, curr_logprob):
         return curr_logprob

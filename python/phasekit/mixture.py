@@ -292,13 +292,20 @@ class GaussianMixture(_DensityMixin, BaseEstimator):
                 "Expected n_samples >= n_components "
                 f"but got n_components = {self.n_components}, n_samples = {X.shape[0]}"
             )
+        data = _core.Sequences(X)
+        threads = n_threads(self.n_jobs)
+        self._run_em(X, lambda est: est._core().expected_statistics(data, threads))
+        return self._core().responsibilities(X).argmax(axis=1)
+
+    def _run_em(self, X, estep):
+        """scikit-learn's EM loop; ``X`` initialises, ``estep(estimator)`` returns
+        the :class:`phasekit._core.Statistics` of all the data under the current
+        parameters (in this process, or over a Dask bag)."""
         do_init = not (self.warm_start and hasattr(self, "converged_"))
         n_init = self.n_init if do_init else 1
         max_lower_bound = -np.inf
         self.converged_ = False
         random_state = check_random_state(self.random_state)
-        data = _core.Sequences(X)
-        threads = n_threads(self.n_jobs)
         best_params, best_n_iter = None, 0
         for init in range(n_init):
             if self.verbose == 1:
@@ -313,7 +320,7 @@ class GaussianMixture(_DensityMixin, BaseEstimator):
                 converged = False
                 for n_iter in range(1, self.max_iter + 1):
                     prev_lower_bound = lower_bound
-                    stats = self._core().expected_statistics(data, threads).arrays()
+                    stats = estep(self).arrays()
                     log_prob_norm = stats["log_likelihood"] / stats["n_frames"]
                     self._m_step(stats)
                     lower_bound = log_prob_norm
@@ -339,7 +346,6 @@ class GaussianMixture(_DensityMixin, BaseEstimator):
         self._set_parameters(best_params)
         self.n_iter_ = best_n_iter
         self.lower_bound_ = max_lower_bound
-        return self._core().responsibilities(X).argmax(axis=1)
 
     def _initialize_parameters(self, X, random_state):
         n_samples = X.shape[0]

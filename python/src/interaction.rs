@@ -409,3 +409,23 @@ pub fn load_dataset(py: Python<'_>, path: PathBuf) -> PyResult<Vec<PyAction<'_>>
     let actions = py.allow_threads(|| data::load_dataset(&path)).map_err(cli_error)?;
     actions.into_iter().map(|a| action_tuple(py, a)).collect()
 }
+
+/// The training demonstrations of `phasekit fit --data PATHS [--action NAME]`:
+/// files as given, folders as their `train_*` CSV/NPY files (the action's
+/// subfolder with `action`), all with the same columns.
+#[pyfunction]
+#[pyo3(signature = (paths, action=None))]
+pub fn load_training(
+    py: Python<'_>,
+    paths: Vec<PathBuf>,
+    action: Option<String>,
+) -> PyResult<Vec<(String, Vec<String>, Bound<'_, PyArray2<f64>>)>> {
+    use phasekit_cli::commands::{fit_files, read_tables};
+    let tables = py
+        .allow_threads(|| {
+            let files = fit_files(&paths, action.as_deref())?;
+            read_tables(&files, true)
+        })
+        .map_err(cli_error)?;
+    tables.into_iter().map(|t| table_tuple(py, t)).collect()
+}

@@ -39,5 +39,6 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(interaction::load_action, m)?)?;
     m.add_function(wrap_pyfunction!(interaction::load_dataset, m)?)?;
     m.add_function(wrap_pyfunction!(interaction::default_options, m)?)?;
+    m.add_function(wrap_pyfunction!(interaction::load_training, m)?)?;
     Ok(())
 }
