@@ -13,7 +13,17 @@
   sequences (import it explicitly; it needs ``dask``).
 """
 
-from . import _core
+from . import _core, datasets, gmr, hmm, mixture
 from ._core import __version__
+from .interaction import InteractionModel, Prediction, Segmentation
 
-__all__ = ["__version__"]
+__all__ = [
+    "__version__",
+    "hmm",
+    "mixture",
+    "gmr",
+    "datasets",
+    "InteractionModel",
+    "Prediction",
+    "Segmentation",
+]
