@@ -773,6 +773,10 @@ class GaussianHMM(_BaseHMM):
         # cancellation of raw second moments.
         post, c, s, Q = stats["post"], stats["shift"], stats["sum"], stats["sum_sq"]
         obs = s + post[:, None] * c
+        # A state that received no weight at all keeps its mean and covariance
+        # (hmmlearn divides 0 by 0 there and the model becomes NaN).
+        empty = post <= 0
+        old_means, old_covars = self.means_.copy(), np.array(self._covars_, copy=True)
         means_prior = self.means_prior
         means_weight = self.means_weight
         denom = post[:, None]
@@ -803,6 +807,13 @@ class GaussianHMM(_BaseHMM):
                     self._covars_ = (covars_prior + c_n.sum(axis=0)) / (cvweight + post.sum())
                 else:
                     self._covars_ = (covars_prior + c_n) / (cvweight + post[:, None, None])
+        if empty.any():
+            self.means_ = np.where(empty[:, None], old_means, self.means_)
+            if self.covariance_type != "tied" and np.shape(self._covars_)[0] == len(empty):
+                cov = np.array(self._covars_, copy=True)
+                old = old_covars if old_covars.shape == cov.shape else np.broadcast_to(old_covars.reshape(len(empty), *([1] * (cov.ndim - 1))), cov.shape)
+                cov[empty] = old[empty]
+                self._covars_ = cov
 
     def _generate_sample_from_state(self, state, random_state):
         return random_state.multivariate_normal(self.means_[state], self.covars_[state])
@@ -1290,6 +1301,7 @@ class GMMHMM(_BaseHMM):
         # current means μ_old: m_n = Σγx = s + n c; hmmlearn's c_n is
         # Σγ(x − μ_old)(x − μ_old)ᵀ = Q exactly.
         c, s, Q = stats["shift"], stats["sum"], stats["sum_sq"]
+        old_means = self.means_.copy()
         if "w" in self.params:
             alphas_minus_one = pr["weights_prior"] - 1
             w_n = post_mix_sum + alphas_minus_one
@@ -1300,6 +1312,8 @@ class GMMHMM(_BaseHMM):
             m_d = post_mix_sum + pr["means_weight"]
             m_d[(self.weights_ == 0) & (m_n == 0).all(axis=-1)] = 1
             self.means_ = m_n / m_d[:, :, None]
+            empty = post_mix_sum <= 0
+            self.means_[empty] = old_means[empty]
         if "c" in self.params:
             lambdas, mus = pr["means_weight"], pr["means_prior"]
             centered_means = self.means_ - mus
@@ -1326,7 +1340,13 @@ class GMMHMM(_BaseHMM):
                 c_n = np.einsum("ij,ijkl->ikl", lambdas, _outer(centered_means)) + psis_t
                 c_n += Q.sum(axis=1)
                 c_d = (post_sum + nm + nus + nf + 1)[:, None, None]
-            self.covars_ = c_n / c_d
+            new = c_n / c_d
+            # A component with no weight keeps its covariance (hmmlearn's
+            # becomes 0 there: a degenerate component phasekit refuses).
+            empty = post_mix_sum <= 0
+            if kind != "tied" and empty.any():
+                new[empty] = self.covars_[empty]
+            self.covars_ = new
 
     def _generate_sample_from_state(self, state, random_state):
         cur_weights = self.weights_[state]

@@ -180,7 +180,7 @@ impl HmmCore {
                     means[i * m * d..(i + 1) * m * d].to_vec(),
                     covars[i * per_cov..(i + 1) * per_cov].to_vec(),
                 )
-                .map_err(|e| value_error(format!("state {i}: {e}")))
+                .map_err(|e| value_error(format!("state {i}: {}", e.to_string().replacen("state ", "component ", 1))))
             })
             .collect::<PyResult<Vec<_>>>()?;
         let emission =
