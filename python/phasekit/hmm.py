@@ -231,6 +231,18 @@ def _fill_covars(covars, covariance_type="full", n_components=1, n_features=1):
         return eye * covars
 
 
+def _data_cov(X):
+    """``np.cov(X.T)`` (hmmlearn's), over the pairwise observed values when some are NaN."""
+    if not np.isnan(X).any():
+        return np.cov(X.T)
+    c = np.ma.cov(np.ma.masked_invalid(X), rowvar=False).filled(np.nan)
+    c = np.where(np.isnan(c), 0.0, c)
+    d = np.diag(c).copy()
+    d[d <= 0] = 1.0
+    c[np.diag_indices_from(c)] = d
+    return c
+
+
 def _outer(x):
     """Outer product over the last axis."""
     return x[..., :, None] * x[..., None, :]
@@ -728,7 +740,7 @@ class GaussianHMM(_BaseHMM):
             centroids, _, _ = _core.kmeans(X, self.n_components, derived_seed(random_state), 10)
             self.means_ = centroids
         if self._needs_init("c", "covars_"):
-            cv = np.cov(X.T) + self.min_covar * np.eye(X.shape[1])
+            cv = _data_cov(X) + self.min_covar * np.eye(X.shape[1])
             if not cv.shape:
                 cv.shape = (1, 1)
             self.covars_ = _distribute_covar_matrix(cv, self.covariance_type, self.n_components).copy()
@@ -1205,7 +1217,7 @@ class GMMHMM(_BaseHMM):
         seed = derived_seed(random_state)
 
         def compute_cv():
-            return np.cov(X.T) + self.min_covar * np.eye(nf)
+            return _data_cov(X) + self.min_covar * np.eye(nf)
 
         cv = None
         if self._needs_init("m", "means_"):
