@@ -1,7 +1,9 @@
 //! NumPy arrays in and out, sequences, errors and thread pools.
 
 use numpy::ndarray::{Array1, Array2, Array3, ArrayD, IxDyn};
-use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyArrayDyn, PyReadonlyArray2, PyUntypedArrayMethods};
+use numpy::{
+    IntoPyArray, PyArray1, PyArray2, PyArray3, PyArrayDyn, PyReadonlyArray2, PyUntypedArrayMethods,
+};
 use phasekit::emission::{Frames, SequenceSet};
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
@@ -21,7 +23,10 @@ pub fn runtime_error(e: impl Display) -> PyErr {
 }
 
 /// The row-major values of a C-contiguous float64 array, borrowed, with its shape.
-pub fn matrix<'a>(x: &'a PyReadonlyArray2<'_, f64>, name: &str) -> PyResult<(&'a [f64], usize, usize)> {
+pub fn matrix<'a>(
+    x: &'a PyReadonlyArray2<'_, f64>,
+    name: &str,
+) -> PyResult<(&'a [f64], usize, usize)> {
     let shape = x.shape();
     let (t, d) = (shape[0], shape[1]);
     let data = x.as_slice().map_err(|_| {
@@ -70,21 +75,34 @@ pub fn frames_of(seq: &[f64], d: usize, k: usize) -> PyResult<Frames<'_>> {
 }
 
 /// A `T × S` row-major vector as a NumPy array.
-pub fn array2<'py>(py: Python<'py>, v: Vec<f64>, rows: usize, cols: usize) -> PyResult<Bound<'py, PyArray2<f64>>> {
+pub fn array2<'py>(
+    py: Python<'py>,
+    v: Vec<f64>,
+    rows: usize,
+    cols: usize,
+) -> PyResult<Bound<'py, PyArray2<f64>>> {
     Ok(Array2::from_shape_vec((rows, cols), v)
         .map_err(runtime_error)?
         .into_pyarray(py))
 }
 
 /// A row-major vector as a 3-D NumPy array.
-pub fn array3<'py>(py: Python<'py>, v: Vec<f64>, shape: (usize, usize, usize)) -> PyResult<Bound<'py, PyArray3<f64>>> {
+pub fn array3<'py>(
+    py: Python<'py>,
+    v: Vec<f64>,
+    shape: (usize, usize, usize),
+) -> PyResult<Bound<'py, PyArray3<f64>>> {
     Ok(Array3::from_shape_vec(shape, v)
         .map_err(runtime_error)?
         .into_pyarray(py))
 }
 
 /// A row-major vector as an N-D NumPy array.
-pub fn array_dyn<'py>(py: Python<'py>, v: Vec<f64>, shape: &[usize]) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+pub fn array_dyn<'py>(
+    py: Python<'py>,
+    v: Vec<f64>,
+    shape: &[usize],
+) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
     Ok(ArrayD::from_shape_vec(IxDyn(shape), v)
         .map_err(runtime_error)?
         .into_pyarray(py))
@@ -101,7 +119,9 @@ pub fn array1<'py, T: numpy::Element>(py: Python<'py>, v: Vec<T>) -> Bound<'py, 
 pub fn pool(n: usize) -> PyResult<Arc<ThreadPool>> {
     static POOLS: OnceLock<Mutex<HashMap<usize, Arc<ThreadPool>>>> = OnceLock::new();
     if n == 0 {
-        return Err(PyValueError::new_err("n_jobs: at least one thread is needed"));
+        return Err(PyValueError::new_err(
+            "n_jobs: at least one thread is needed",
+        ));
     }
     let mut pools = POOLS
         .get_or_init(|| Mutex::new(HashMap::new()))
@@ -135,7 +155,11 @@ impl Sequences {
     /// infinity is refused with the sequence, frame and column.
     #[new]
     #[pyo3(signature = (x, lengths=None))]
-    fn new(py: Python<'_>, x: PyReadonlyArray2<'_, f64>, lengths: Option<Vec<usize>>) -> PyResult<Self> {
+    fn new(
+        py: Python<'_>,
+        x: PyReadonlyArray2<'_, f64>,
+        lengths: Option<Vec<usize>>,
+    ) -> PyResult<Self> {
         let (data, t, d) = matrix(&x, "X")?;
         let lengths = sequence_lengths(lengths, t)?;
         let parts = split(data, d, &lengths);

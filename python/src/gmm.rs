@@ -28,8 +28,13 @@ impl GmmCore {
         n_features: usize,
     ) -> PyResult<Self> {
         let kind = covariance_type(covariance_type_)?;
-        let components = Gaussian::new(kind, n_features, flat(&means, "means")?, flat(&covars, "covariances")?)
-            .map_err(value_error)?;
+        let components = Gaussian::new(
+            kind,
+            n_features,
+            flat(&means, "means")?,
+            flat(&covars, "covariances")?,
+        )
+        .map_err(value_error)?;
         let model = Gmm::new(flat(&weights, "weights")?, components).map_err(value_error)?;
         Ok(GmmCore { model })
     }
@@ -41,18 +46,29 @@ impl GmmCore {
     }
 
     /// `log c_k(x_t)` (without the weights), `(n_frames, K)`.
-    fn log_density<'py>(&self, py: Python<'py>, x: PyReadonlyArray2<'py, f64>) -> PyResult<Bound<'py, PyArray2<f64>>> {
+    fn log_density<'py>(
+        &self,
+        py: Python<'py>,
+        x: PyReadonlyArray2<'py, f64>,
+    ) -> PyResult<Bound<'py, PyArray2<f64>>> {
         let (data, t, d) = matrix(&x, "X")?;
         let out = py.allow_threads(|| {
             let frames = frames_of(data, d, 0)?;
             self.model.check_frames(frames).map_err(value_error)?;
-            self.model.components().log_density(frames).map_err(value_error)
+            self.model
+                .components()
+                .log_density(frames)
+                .map_err(value_error)
         })?;
         array2(py, out, t, self.model.n_components())
     }
 
     /// `log p(x_t)` of every frame, `(n_frames,)`.
-    fn score_samples<'py>(&self, py: Python<'py>, x: PyReadonlyArray2<'py, f64>) -> PyResult<Bound<'py, PyArray1<f64>>> {
+    fn score_samples<'py>(
+        &self,
+        py: Python<'py>,
+        x: PyReadonlyArray2<'py, f64>,
+    ) -> PyResult<Bound<'py, PyArray1<f64>>> {
         let (data, _, d) = matrix(&x, "X")?;
         let out = py.allow_threads(|| {
             let frames = frames_of(data, d, 0)?;
@@ -62,7 +78,11 @@ impl GmmCore {
     }
 
     /// Responsibilities `r_tk`, `(n_frames, K)`.
-    fn responsibilities<'py>(&self, py: Python<'py>, x: PyReadonlyArray2<'py, f64>) -> PyResult<Bound<'py, PyArray2<f64>>> {
+    fn responsibilities<'py>(
+        &self,
+        py: Python<'py>,
+        x: PyReadonlyArray2<'py, f64>,
+    ) -> PyResult<Bound<'py, PyArray2<f64>>> {
         let (data, t, d) = matrix(&x, "X")?;
         let out = py.allow_threads(|| {
             let frames = frames_of(data, d, 0)?;
@@ -74,7 +94,12 @@ impl GmmCore {
     /// The E-step of EM over all frames of `data` on `n_threads` threads
     /// (bit-identical for any count).
     #[pyo3(signature = (data, n_threads=1))]
-    fn expected_statistics(&self, py: Python<'_>, data: &Sequences, n_threads: usize) -> PyResult<Statistics> {
+    fn expected_statistics(
+        &self,
+        py: Python<'_>,
+        data: &Sequences,
+        n_threads: usize,
+    ) -> PyResult<Statistics> {
         let pool = pool(n_threads)?;
         let frames = data.set.all_frames();
         let stats = py
@@ -107,9 +132,18 @@ impl GmmCore {
         }
         let stats = py.allow_threads(|| {
             let frames = frames_of(data, d, 0)?;
-            let template = Gaussian::standard(kind, Shape { n_states: k, dim: d }).map_err(value_error)?;
+            let template = Gaussian::standard(
+                kind,
+                Shape {
+                    n_states: k,
+                    dim: d,
+                },
+            )
+            .map_err(value_error)?;
             let mut stats = template.new_stats();
-            template.accumulate(frames, w, &mut stats).map_err(value_error)?;
+            template
+                .accumulate(frames, w, &mut stats)
+                .map_err(value_error)?;
             let mut counts = vec![0.0; k];
             for row in w.chunks_exact(k) {
                 for (c, v) in counts.iter_mut().zip(row) {
@@ -148,14 +182,17 @@ pub fn kmeans<'py>(
     use rand::SeedableRng;
     let (data, _, d) = matrix(&x, "X")?;
     if n_init == 0 {
-        return Err(pyo3::exceptions::PyValueError::new_err("n_init must be at least 1"));
+        return Err(pyo3::exceptions::PyValueError::new_err(
+            "n_init must be at least 1",
+        ));
     }
     let best = py.allow_threads(|| {
         let frames = frames_of(data, d, 0)?;
         let mut best: Option<phasekit::emission::kmeans::KMeans> = None;
         for r in 0..n_init {
             let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed.wrapping_add(r as u64));
-            let km = kmeans(frames, k, Seeding::PlusPlus, max_iter, &mut rng).map_err(value_error)?;
+            let km =
+                kmeans(frames, k, Seeding::PlusPlus, max_iter, &mut rng).map_err(value_error)?;
             if best.as_ref().is_none_or(|b| km.inertia < b.inertia) {
                 best = Some(km);
             }
@@ -163,5 +200,9 @@ pub fn kmeans<'py>(
         PyResult::Ok(best.expect("n_init >= 1"))
     })?;
     let labels = best.labels.iter().map(|&l| l as i64).collect();
-    Ok((array2(py, best.centroids, k, d)?, array1(py, labels), best.inertia))
+    Ok((
+        array2(py, best.centroids, k, d)?,
+        array1(py, labels),
+        best.inertia,
+    ))
 }

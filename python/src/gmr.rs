@@ -24,7 +24,9 @@ pub fn read_frame(frame: &Bound<'_, PyAny>, n: usize, buf: &mut Vec<f64>) -> PyR
         }
     } else {
         let v: Vec<f64> = frame.extract().map_err(|_| {
-            PyValueError::new_err(format!("a frame must be a 1-D array or sequence of {n} numbers"))
+            PyValueError::new_err(format!(
+                "a frame must be a 1-D array or sequence of {n} numbers"
+            ))
         })?;
         buf.extend(v);
     }
@@ -36,6 +38,9 @@ pub fn read_frame(frame: &Bound<'_, PyAny>, n: usize, buf: &mut Vec<f64>) -> PyR
     }
     Ok(())
 }
+
+/// `(mean (O,), covariance (O, O))` of one predicted frame.
+pub type MeanAndCovariance<'py> = (Bound<'py, PyArray1<f64>>, Bound<'py, PyArray2<f64>>);
 
 /// A regression of output dims on input dims under a joint GMM or HMM.
 #[pyclass(module = "phasekit._core", frozen)]
@@ -94,7 +99,11 @@ impl GmrCore {
         py: Python<'py>,
         x: PyReadonlyArray2<'py, f64>,
         with_covariance: bool,
-    ) -> PyResult<(Bound<'py, PyArray2<f64>>, Option<Bound<'py, PyAny>>, Bound<'py, PyArray2<f64>>)> {
+    ) -> PyResult<(
+        Bound<'py, PyArray2<f64>>,
+        Option<Bound<'py, PyAny>>,
+        Bound<'py, PyArray2<f64>>,
+    )> {
         let (data, t, d) = matrix(&x, "X")?;
         if d != self.n_in {
             return Err(PyValueError::new_err(format!(
@@ -111,7 +120,7 @@ impl GmrCore {
             })
             .map_err(value_error)?;
         let o = p.n_out;
-        let k = if t == 0 { 0 } else { p.weights.len() / t };
+        let k = p.weights.len().checked_div(t).unwrap_or(0);
         let cov = match p.covariance {
             Some(c) => Some(array3(py, c, (t, o, o))?.into_any()),
             None => None,
@@ -143,7 +152,11 @@ pub struct OnlineGmr {
 #[pymethods]
 impl OnlineGmr {
     /// The predicted output mean `(O,)` after input frame `frame` `(I,)`.
-    fn step<'py>(&mut self, py: Python<'py>, frame: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyArray1<f64>>> {
+    fn step<'py>(
+        &mut self,
+        py: Python<'py>,
+        frame: &Bound<'py, PyAny>,
+    ) -> PyResult<Bound<'py, PyArray1<f64>>> {
         read_frame(frame, self.n_in, &mut self.buf)?;
         let mean = self.online.step(&self.buf, false).map_err(value_error)?;
         Ok(array1(py, mean.to_vec()))
@@ -154,12 +167,19 @@ impl OnlineGmr {
         &mut self,
         py: Python<'py>,
         frame: &Bound<'py, PyAny>,
-    ) -> PyResult<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray2<f64>>)> {
+    ) -> PyResult<MeanAndCovariance<'py>> {
         read_frame(frame, self.n_in, &mut self.buf)?;
-        let mean = self.online.step(&self.buf, true).map_err(value_error)?.to_vec();
+        let mean = self
+            .online
+            .step(&self.buf, true)
+            .map_err(value_error)?
+            .to_vec();
         let cov = self.online.covariance().to_vec();
         let o = self.n_out;
-        Ok((array1(py, mean), array2(py, cov, o, o).map_err(runtime_error)?))
+        Ok((
+            array1(py, mean),
+            array2(py, cov, o, o).map_err(runtime_error)?,
+        ))
     }
 
     /// Starts a new sequence (HMM-GMR forgets its belief).

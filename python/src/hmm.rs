@@ -109,8 +109,8 @@ impl HmmCore {
         emissionprob: PyReadonlyArrayDyn<'_, f64>,
         n_features: usize,
     ) -> PyResult<Self> {
-        let emission =
-            Categorical::new(n_features, flat(&emissionprob, "emissionprob")?).map_err(value_error)?;
+        let emission = Categorical::new(n_features, flat(&emissionprob, "emissionprob")?)
+            .map_err(value_error)?;
         let hmm = Hmm::new(
             flat(&startprob, "startprob")?,
             flat(&transmat, "transmat")?,
@@ -180,7 +180,12 @@ impl HmmCore {
                     means[i * m * d..(i + 1) * m * d].to_vec(),
                     covars[i * per_cov..(i + 1) * per_cov].to_vec(),
                 )
-                .map_err(|e| value_error(format!("state {i}: {}", e.to_string().replacen("state ", "component ", 1))))
+                .map_err(|e| {
+                    value_error(format!(
+                        "state {i}: {}",
+                        e.to_string().replacen("state ", "component ", 1)
+                    ))
+                })
             })
             .collect::<PyResult<Vec<_>>>()?;
         let emission =
@@ -214,7 +219,12 @@ impl HmmCore {
 
     /// `Σ_k log p(x^k)` over the sequences of `x` split by `lengths`.
     #[pyo3(signature = (x, lengths=None))]
-    fn score(&self, py: Python<'_>, x: PyReadonlyArray2<'_, f64>, lengths: Option<Vec<usize>>) -> PyResult<f64> {
+    fn score(
+        &self,
+        py: Python<'_>,
+        x: PyReadonlyArray2<'_, f64>,
+        lengths: Option<Vec<usize>>,
+    ) -> PyResult<f64> {
         let (data, t, d) = matrix(&x, "X")?;
         let lengths = sequence_lengths(lengths, t)?;
         py.allow_threads(|| {
@@ -282,32 +292,38 @@ impl HmmCore {
     /// The E-step of Baum-Welch over `data` on `n_threads` threads
     /// (bit-identical for any count): mergeable expected statistics.
     #[pyo3(signature = (data, n_threads=1))]
-    fn expected_statistics(&self, py: Python<'_>, data: &Sequences, n_threads: usize) -> PyResult<Statistics> {
+    fn expected_statistics(
+        &self,
+        py: Python<'_>,
+        data: &Sequences,
+        n_threads: usize,
+    ) -> PyResult<Statistics> {
         let pool = pool(n_threads)?;
         let set = &data.set;
-        let stats = py.allow_threads(|| {
-            pool.install(|| -> Result<HmmStats, phasekit::hmm::HmmError> {
-                Ok(match &self.model {
-                    AnyHmm::Gaussian(h) => {
-                        h.check_sequences(set)?;
-                        HmmStats::Gaussian(h.expected_statistics(set)?.into())
-                    }
-                    AnyHmm::Categorical(h) => {
-                        h.check_sequences(set)?;
-                        HmmStats::Categorical(h.expected_statistics(set)?.into())
-                    }
-                    AnyHmm::Poisson(h) => {
-                        h.check_sequences(set)?;
-                        HmmStats::Poisson(h.expected_statistics(set)?.into())
-                    }
-                    AnyHmm::Mixture(h) => {
-                        h.check_sequences(set)?;
-                        HmmStats::Mixture(h.expected_statistics(set)?.into())
-                    }
+        let stats = py
+            .allow_threads(|| {
+                pool.install(|| -> Result<HmmStats, phasekit::hmm::HmmError> {
+                    Ok(match &self.model {
+                        AnyHmm::Gaussian(h) => {
+                            h.check_sequences(set)?;
+                            HmmStats::Gaussian(h.expected_statistics(set)?.into())
+                        }
+                        AnyHmm::Categorical(h) => {
+                            h.check_sequences(set)?;
+                            HmmStats::Categorical(h.expected_statistics(set)?.into())
+                        }
+                        AnyHmm::Poisson(h) => {
+                            h.check_sequences(set)?;
+                            HmmStats::Poisson(h.expected_statistics(set)?.into())
+                        }
+                        AnyHmm::Mixture(h) => {
+                            h.check_sequences(set)?;
+                            HmmStats::Mixture(h.expected_statistics(set)?.into())
+                        }
+                    })
                 })
             })
-        })
-        .map_err(value_error)?;
+            .map_err(value_error)?;
         Ok(Statistics::hmm(stats))
     }
 

@@ -5,9 +5,9 @@
 //! demonstration files. Every call into `phasekit_cli` is in this file.
 
 use crate::arrays::{array1, array2, array3, matrix, pool, runtime_error, value_error};
-use crate::gmr::read_frame;
+use crate::gmr::{read_frame, MeanAndCovariance};
 use numpy::{PyArray1, PyArray2, PyReadonlyArray2};
-use phasekit::tsc::{OnlinePredictor, PresetOptions, Predictor};
+use phasekit::tsc::{OnlinePredictor, Predictor, PresetOptions};
 use phasekit_cli::commands::fit::fit_tables;
 use phasekit_cli::data::{self, FeatureSpec, Table, Velocity};
 use phasekit_cli::model_file::{ModelFile, Standardisation};
@@ -64,8 +64,8 @@ fn velocity(v: &str) -> PyResult<Velocity> {
 /// `max_iter`, `tol`, `restarts`, `seed`, …); an unknown key is an error.
 fn preset_options(overrides: &str) -> PyResult<PresetOptions> {
     let mut base = serde_json::to_value(PresetOptions::default()).map_err(runtime_error)?;
-    let given: serde_json::Map<String, serde_json::Value> =
-        serde_json::from_str(overrides).map_err(|e| PyValueError::new_err(format!("options: {e}")))?;
+    let given: serde_json::Map<String, serde_json::Value> = serde_json::from_str(overrides)
+        .map_err(|e| PyValueError::new_err(format!("options: {e}")))?;
     let fields = base
         .as_object_mut()
         .ok_or_else(|| runtime_error("preset options are not an object"))?;
@@ -75,7 +75,11 @@ fn preset_options(overrides: &str) -> PyResult<PresetOptions> {
             known.sort();
             return Err(PyValueError::new_err(format!(
                 "unknown option `{k}` (options: {})",
-                known.iter().map(|s| s.as_str()).collect::<Vec<_>>().join(", ")
+                known
+                    .iter()
+                    .map(|s| s.as_str())
+                    .collect::<Vec<_>>()
+                    .join(", ")
             )));
         }
         fields.insert(k, v);
@@ -237,7 +241,9 @@ impl InteractionCore {
     ) -> PyResult<(Bound<'py, PyArray2<f64>>, Option<Bound<'py, PyAny>>)> {
         let t = table(name, columns, &x)?;
         let p = py
-            .allow_threads(|| pipeline::predict_table(&self.file, &self.predictor, &t, with_covariance))
+            .allow_threads(|| {
+                pipeline::predict_table(&self.file, &self.predictor, &t, with_covariance)
+            })
             .map_err(cli_error)?;
         let (n, o) = (p.len(), p.n_out);
         let cov = match p.covariance {
@@ -256,7 +262,11 @@ impl InteractionCore {
         name: String,
         columns: Vec<String>,
         x: PyReadonlyArray2<'py, f64>,
-    ) -> PyResult<(Bound<'py, PyArray1<i64>>, Bound<'py, PyArray1<i64>>, Bound<'py, PyArray1<i64>>)> {
+    ) -> PyResult<(
+        Bound<'py, PyArray1<i64>>,
+        Bound<'py, PyArray1<i64>>,
+        Bound<'py, PyArray1<i64>>,
+    )> {
         let t = table(name, columns, &x)?;
         let s = py
             .allow_threads(|| pipeline::segment_table(&self.file, &t))
@@ -268,7 +278,11 @@ impl InteractionCore {
             .iter()
             .map(|c| c.map_or(-1, |v| v as i64))
             .collect();
-        Ok((array1(py, labels), array1(py, transitions), array1(py, clusters)))
+        Ok((
+            array1(py, labels),
+            array1(py, transitions),
+            array1(py, clusters),
+        ))
     }
 
     /// A frame-by-frame predictor taking raw human frames (the model's human
@@ -341,7 +355,11 @@ impl OnlineInteraction {
 impl OnlineInteraction {
     /// The robot's predicted frame `(O,)` after the human's raw frame `frame`
     /// (a 1-D array or sequence of the model's human columns; NaN = missing).
-    fn step<'py>(&mut self, py: Python<'py>, frame: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyArray1<f64>>> {
+    fn step<'py>(
+        &mut self,
+        py: Python<'py>,
+        frame: &Bound<'py, PyAny>,
+    ) -> PyResult<Bound<'py, PyArray1<f64>>> {
         self.advance(frame, false)?;
         Ok(array1(py, self.mean.clone()))
     }
@@ -351,10 +369,13 @@ impl OnlineInteraction {
         &mut self,
         py: Python<'py>,
         frame: &Bound<'py, PyAny>,
-    ) -> PyResult<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray2<f64>>)> {
+    ) -> PyResult<MeanAndCovariance<'py>> {
         self.advance(frame, true)?;
         let o = self.mean.len();
-        Ok((array1(py, self.mean.clone()), array2(py, self.covariance.clone(), o, o)?))
+        Ok((
+            array1(py, self.mean.clone()),
+            array2(py, self.covariance.clone(), o, o)?,
+        ))
     }
 
     /// Starts a new interaction (the belief and the velocity history are reset).
@@ -370,7 +391,13 @@ impl OnlineInteraction {
     }
 }
 
-fn table_tuple<'py>(py: Python<'py>, t: Table) -> PyResult<(String, Vec<String>, Bound<'py, PyArray2<f64>>)> {
+/// `(path, columns, values (T, C))` of a demonstration.
+type PyTable<'py> = (String, Vec<String>, Bound<'py, PyArray2<f64>>);
+
+fn table_tuple<'py>(
+    py: Python<'py>,
+    t: Table,
+) -> PyResult<(String, Vec<String>, Bound<'py, PyArray2<f64>>)> {
     let (n, c) = (t.n_rows(), t.columns.len());
     let values = array2(py, t.data, n, c)?;
     Ok((t.path.display().to_string(), t.columns, values))
@@ -379,8 +406,13 @@ fn table_tuple<'py>(py: Python<'py>, t: Table) -> PyResult<(String, Vec<String>,
 /// Reads a demonstration file (CSV with a header, or a 2-D NPY array) as the
 /// command does: `(path, columns, values (T, C))`.
 #[pyfunction]
-pub fn read_table<'py>(py: Python<'py>, path: PathBuf) -> PyResult<(String, Vec<String>, Bound<'py, PyArray2<f64>>)> {
-    let t = py.allow_threads(|| data::read_table(&path)).map_err(cli_error)?;
+pub fn read_table<'py>(
+    py: Python<'py>,
+    path: PathBuf,
+) -> PyResult<(String, Vec<String>, Bound<'py, PyArray2<f64>>)> {
+    let t = py
+        .allow_threads(|| data::read_table(&path))
+        .map_err(cli_error)?;
     table_tuple(py, t)
 }
 
@@ -391,22 +423,34 @@ type PyAction<'py> = (
 );
 
 fn action_tuple<'py>(py: Python<'py>, a: data::Action) -> PyResult<PyAction<'py>> {
-    let train = a.train.into_iter().map(|t| table_tuple(py, t)).collect::<PyResult<_>>()?;
-    let test = a.test.into_iter().map(|t| table_tuple(py, t)).collect::<PyResult<_>>()?;
+    let train = a
+        .train
+        .into_iter()
+        .map(|t| table_tuple(py, t))
+        .collect::<PyResult<_>>()?;
+    let test = a
+        .test
+        .into_iter()
+        .map(|t| table_tuple(py, t))
+        .collect::<PyResult<_>>()?;
     Ok((a.name, train, test))
 }
 
 /// One action folder (`train_*`, `test_*` CSV/NPY files): `(name, train, test)`.
 #[pyfunction]
 pub fn load_action(py: Python<'_>, path: PathBuf) -> PyResult<PyAction<'_>> {
-    let a = py.allow_threads(|| data::load_action(&path)).map_err(cli_error)?;
+    let a = py
+        .allow_threads(|| data::load_action(&path))
+        .map_err(cli_error)?;
     action_tuple(py, a)
 }
 
 /// A folder of action folders (or one action folder), as `phasekit evaluate --data` reads it.
 #[pyfunction]
 pub fn load_dataset(py: Python<'_>, path: PathBuf) -> PyResult<Vec<PyAction<'_>>> {
-    let actions = py.allow_threads(|| data::load_dataset(&path)).map_err(cli_error)?;
+    let actions = py
+        .allow_threads(|| data::load_dataset(&path))
+        .map_err(cli_error)?;
     actions.into_iter().map(|a| action_tuple(py, a)).collect()
 }
 
@@ -419,7 +463,7 @@ pub fn load_training(
     py: Python<'_>,
     paths: Vec<PathBuf>,
     action: Option<String>,
-) -> PyResult<Vec<(String, Vec<String>, Bound<'_, PyArray2<f64>>)>> {
+) -> PyResult<Vec<PyTable<'_>>> {
     use phasekit_cli::commands::{fit_files, read_tables};
     let tables = py
         .allow_threads(|| {

@@ -87,7 +87,12 @@ pub struct GmmStats {
 
 impl GmmStats {
     /// Statistics with these parts.
-    pub fn new(log_likelihood: f64, counts: Vec<f64>, components: GaussianStats, n_frames: usize) -> Self {
+    pub fn new(
+        log_likelihood: f64,
+        counts: Vec<f64>,
+        components: GaussianStats,
+        n_frames: usize,
+    ) -> Self {
         GmmStats {
             log_likelihood,
             counts,
@@ -144,7 +149,9 @@ impl Statistics {
         let mismatch = || PyValueError::new_err("cannot merge statistics of different model kinds");
         let inner = match (&self.inner, &other.inner) {
             (Inner::Hmm(a), Inner::Hmm(b)) => Inner::Hmm(match (a, b) {
-                (HmmStats::Gaussian(a), HmmStats::Gaussian(b)) => HmmStats::Gaussian(merge_exp(a, b)?),
+                (HmmStats::Gaussian(a), HmmStats::Gaussian(b)) => {
+                    HmmStats::Gaussian(merge_exp(a, b)?)
+                }
                 (HmmStats::Categorical(a), HmmStats::Categorical(b)) => {
                     HmmStats::Categorical(merge_exp(a, b)?)
                 }
@@ -223,7 +230,11 @@ struct PoissonView {
 fn view<T: Serialize, V: DeserializeOwned>(stats: &T, what: &str) -> PyResult<V> {
     serde_json::to_value(stats)
         .and_then(serde_json::from_value)
-        .map_err(|e| runtime_error(format!("cannot read phasekit's {what} statistics (their fields changed?): {e}")))
+        .map_err(|e| {
+            runtime_error(format!(
+                "cannot read phasekit's {what} statistics (their fields changed?): {e}"
+            ))
+        })
 }
 
 impl GaussianView {
@@ -265,16 +276,35 @@ fn put_chain<S>(py: Python<'_>, d: &Bound<'_, PyDict>, e: &Exp<S>) -> PyResult<(
 }
 
 /// `post`, `shift`, `sum`, `sum_sq` of Gaussian statistics, with leading shape `lead`.
-fn put_gaussian(py: Python<'_>, d: &Bound<'_, PyDict>, views: &[GaussianView], lead: &[usize]) -> PyResult<()> {
+fn put_gaussian(
+    py: Python<'_>,
+    d: &Bound<'_, PyDict>,
+    views: &[GaussianView],
+    lead: &[usize],
+) -> PyResult<()> {
     let dim = views.first().map_or(0, |v| v.dim);
     let full = views.first().is_some_and(|v| v.full());
-    let cat = |f: &dyn Fn(&GaussianView) -> Vec<f64>| views.iter().flat_map(f).collect::<Vec<f64>>();
+    let cat =
+        |f: &dyn Fn(&GaussianView) -> Vec<f64>| views.iter().flat_map(f).collect::<Vec<f64>>();
     let with = |tail: &[usize]| [lead, tail].concat();
     d.set_item("post", array_dyn(py, cat(&|v| v.weight.clone()), lead)?)?;
-    d.set_item("shift", array_dyn(py, cat(&|v| v.shift.clone()), &with(&[dim]))?)?;
-    d.set_item("sum", array_dyn(py, cat(&|v| v.sum.clone()), &with(&[dim]))?)?;
-    let sq_shape = if full { with(&[dim, dim]) } else { with(&[dim]) };
-    d.set_item("sum_sq", array_dyn(py, cat(&|v| v.sum_sq_filled()), &sq_shape)?)?;
+    d.set_item(
+        "shift",
+        array_dyn(py, cat(&|v| v.shift.clone()), &with(&[dim]))?,
+    )?;
+    d.set_item(
+        "sum",
+        array_dyn(py, cat(&|v| v.sum.clone()), &with(&[dim]))?,
+    )?;
+    let sq_shape = if full {
+        with(&[dim, dim])
+    } else {
+        with(&[dim])
+    };
+    d.set_item(
+        "sum_sq",
+        array_dyn(py, cat(&|v| v.sum_sq_filled()), &sq_shape)?,
+    )?;
     Ok(())
 }
 
@@ -364,7 +394,9 @@ impl Statistics {
         Ok(Statistics { inner })
     }
 
-    fn __reduce__<'py>(slf: &Bound<'py, Self>) -> PyResult<(Bound<'py, PyAny>, (Bound<'py, PyBytes>,))> {
+    fn __reduce__<'py>(
+        slf: &Bound<'py, Self>,
+    ) -> PyResult<(Bound<'py, PyAny>, (Bound<'py, PyBytes>,))> {
         let py = slf.py();
         let ctor = py.get_type::<Statistics>().getattr("from_bytes")?;
         Ok((ctor, (slf.get().to_bytes(py)?,)))
