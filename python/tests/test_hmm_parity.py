@@ -267,3 +267,20 @@ def test_sample_is_hmmlearns(kind):
     Xb, Zb = models[1].sample(50, random_state=3)
     np.testing.assert_array_equal(Za, Zb)
     np.testing.assert_allclose(Xa, Xb, rtol=1e-12)
+
+
+@pytest.mark.parametrize("name", ["GaussianHMM", "GMMHMM", "CategoricalHMM", "PoissonHMM"])
+def test_constructor_is_hmmlearns(name):
+    """Every hmmlearn argument exists, in the same position, with the same default."""
+    import inspect
+
+    ref = inspect.signature(getattr(hmmlearn_hmm, name).__init__).parameters
+    ours = inspect.signature(getattr(hmm, name).__init__).parameters
+    ref_names = list(ref)
+    assert list(ours)[: len(ref_names)] == ref_names
+    for p in ref:
+        assert ours[p].default == ref[p].default, p
+        assert ours[p].kind == ref[p].kind, p
+    extra = [p for p in ours if p not in ref]
+    assert extra == ["n_jobs", "allow_missing", "restarts"]
+    assert all(ours[p].kind == inspect.Parameter.KEYWORD_ONLY for p in extra)
