@@ -37,7 +37,7 @@ def model(iterations):
 
 def main():
     import dask.bag as db
-    from distributed import Client, LocalCluster
+    from distributed import Client, LocalCluster, wait
 
     from phasekit import dask as pkdask
 
@@ -60,8 +60,10 @@ def main():
         del X
         rows.append((n_seq * L, "in process, 1 thread", local, n_seq * L / local, 0.0))
         for workers in (1, 2):
-            with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, Client(cluster):
+            with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, Client(cluster) as client:
                 bag = db.from_sequence(range(n_seq), npartitions=max(8, 4 * workers)).map(make_sequence).persist()
+                wait(bag)  # the data are generated in the workers before the clock starts
+                client.run(lambda: __import__("phasekit"))  # and phasekit is imported there
                 m2 = model(args.iterations)
                 t0 = time.perf_counter()
                 pkdask.fit(m2, bag, init_frames=0, persist=False)
