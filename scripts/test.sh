@@ -27,8 +27,9 @@ echo "== Python test environment ($VENV) =="
 if [ ! -x "$VENV/bin/python" ]; then
   "$PYTHON" -m venv "$VENV"
 fi
-# No-op (and no network) when everything pinned is already installed.
-"$VENV/bin/python" -m pip install --disable-pip-version-check -q --only-binary=:all: \
+# No-op (and no network) when everything pinned is already installed;
+# --no-compile: Python compiles only the modules the tests import.
+"$VENV/bin/python" -m pip install --disable-pip-version-check -q --only-binary=:all: --no-compile \
   -r python/requirements-test.txt
 
 echo "== building the Python package (maturin, dev profile) =="
