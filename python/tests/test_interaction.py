@@ -95,8 +95,12 @@ def test_python_reproduces_the_command_on_its_model_file(folder, tmp_path):
     # stream (online): the human's columns one line at a time
     human = demo_.values[:, :3]
     lines = "\n".join(",".join(repr(float(v)) for v in row) for row in human) + "\n"
-    _, rows = read_csv(run("stream", "--model", model_file, stdin=lines))
-    cli = np.array([[float(v) for v in r[1:]] for r in rows])
+    header, rows = read_csv(run("stream", "--model", model_file, stdin=lines))
+    # The stream's columns by name: the robot's predicted features (the status
+    # column says whether the frame was read as given).
+    idx = [header.index(name) for name in model.robot_features]
+    assert "status" in header and all(r[header.index("status")] == "ok" for r in rows)
+    cli = np.array([[float(r[i]) for i in idx] for r in rows])
     online = model.online()
     ours = np.array([online.step(f) for f in human])
     np.testing.assert_array_equal(ours, cli)
