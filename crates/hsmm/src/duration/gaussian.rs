@@ -152,7 +152,13 @@ fn fit_counts(c: &[f64], min_std: f64, start_mean: f64) -> (f64, f64, bool) {
         for (h, t) in h.iter_mut().zip(&t) {
             *h = theta2 * t * t;
         }
-        let (lo, hi) = ((1.0 - dm as f64) * prec, 2.0 * dm as f64 * prec);
+        // θ1 = μ/σ²: wide enough for a mean anywhere in [1 − D, 2D] and for
+        // a tilt of 40 nats per frame (a wide Gaussian whose mean lies far
+        // outside the support is an exponential tilt on it).
+        let (lo, hi) = (
+            ((1.0 - dm as f64) * prec).min(-40.0),
+            (2.0 * dm as f64 * prec).max(40.0),
+        );
         let (theta1, _) = solve_natural(&h, &t, tbar, lo, hi, start_mean * prec);
         let mean = theta1 / prec;
         log_pmf_row(mean, std, &mut row);
