@@ -286,18 +286,14 @@ fn sampled_durations_have_the_model_mean() {
     let mut r = rng(5);
     let (_, _, segments) = m.sample(200_000, &mut r).unwrap();
     let means = m.mean_durations();
-    for i in 0..2 {
+    for (i, want) in means.iter().enumerate() {
         let lens: Vec<f64> = segments[..segments.len() - 1]
             .iter()
             .filter(|g| g.state == i)
             .map(|g| g.len as f64)
             .collect();
         let mean = lens.iter().sum::<f64>() / lens.len() as f64;
-        assert!(
-            (mean - means[i]).abs() < 0.1,
-            "state {i}: {mean} vs {}",
-            means[i]
-        );
+        assert!((mean - want).abs() < 0.1, "state {i}: {mean} vs {want}");
     }
 }
 
