@@ -48,6 +48,7 @@
 
 use crate::duration::Duration;
 use crate::error::{HsmmError, Result};
+use crate::kernels;
 use crate::model::{Censoring, Hsmm};
 use phasekit_emission::linalg::{exp_in_place, log_sum_exp};
 use phasekit_emission::{Emission, Frames, SequenceSet};
@@ -153,6 +154,8 @@ pub(crate) struct ForwardCore {
     /// `â_{t+1}(j)` of the last step.
     pub(crate) next_starts: Vec<f64>,
     col: Vec<f64>,
+    row_max: Vec<f64>,
+    row_sum: Vec<f64>,
 }
 
 impl ForwardCore {
@@ -167,6 +170,8 @@ impl ForwardCore {
             ends: vec![NEG_INF; s],
             next_starts: vec![NEG_INF; s],
             col: vec![0.0; s],
+            row_max: vec![NEG_INF; s],
+            row_sum: vec![0.0; s],
         };
         core.reset(m);
         core
@@ -192,6 +197,16 @@ impl ForwardCore {
     /// `â_{t+1}` in `next_starts`, and returns `ℓ_t = log p(x_t | x_{<t})`.
     /// An impossible frame returns `−inf`, zeroes `filtered` and leaves the
     /// recursion unchanged.
+    ///
+    /// One pass of exponentials per frame: with `x_d = e^{w_d + log P(D ≥ d) − m_j}`
+    /// (`w` the window of state `j`, `m_j` the row's maximum), the row's share
+    /// of `ℓ_t` is `e^{m_j} Σ_d x_d` and its completions are
+    /// `e^{m_j} Σ_d x_d h_j(d)` with the hazard `h_j(d) = p_j(d) / P(D_j ≥ d) ≤ 1`.
+    /// A term left out by underflow (`x_d` or `h_j(d)` below the smallest
+    /// normal number) is below `10^{-300}` of the row's largest, so the
+    /// completion sum is exact whenever it is at least `10^{-280}`; below
+    /// that (a segment that all but certainly goes on), the completions are
+    /// summed exactly in log space instead.
     // The loops walk several per-state arrays in step; indices say so best.
     #[allow(clippy::needless_range_loop)]
     pub(crate) fn step<E: Emission, D: Duration>(
@@ -202,46 +217,63 @@ impl ForwardCore {
     ) -> f64 {
         let (s, dm, n) = (self.s, self.dm, self.active);
         let tb = &m.tables;
-        // Every segment still going on at t: start, emissions, survival.
-        let mut mx = NEG_INF;
+        let mut gmax = NEG_INF;
         for j in 0..s {
             let base = j * dm;
-            let ej = e[j];
-            let ongoing = &self.ongoing[base..base + n];
-            let surv = &tb.log_survival[base..base + n];
             let out = &mut self.terms[base..base + n];
-            for ((o, a), l) in out.iter_mut().zip(ongoing).zip(surv) {
-                *o = a + ej + l;
-                mx = mx.max(*o);
+            let mj = kernels::add_max(
+                out,
+                &self.ongoing[base..base + n],
+                &tb.log_survival[base..base + n],
+            );
+            if mj == NEG_INF || e[j] == NEG_INF {
+                self.row_max[j] = NEG_INF;
+                self.row_sum[j] = 0.0;
+                self.ends[j] = NEG_INF;
+                continue;
             }
+            kernels::sub(out, mj);
+            exp_in_place(out);
+            let (sum, completion) = kernels::sum_and_dot(out, &tb.hazard[base..base + n]);
+            self.row_max[j] = mj + e[j];
+            self.row_sum[j] = sum;
+            self.ends[j] = completion;
+            gmax = gmax.max(self.row_max[j]);
         }
-        if mx == NEG_INF || mx.is_nan() {
+        if gmax == NEG_INF || gmax.is_nan() {
             filtered.fill(0.0);
             return NEG_INF;
         }
+        for j in 0..s {
+            self.col[j] = self.row_max[j] - gmax;
+        }
+        exp_in_place(&mut self.col);
         let mut total = 0.0;
         for j in 0..s {
-            let out = &mut self.terms[j * dm..j * dm + n];
-            out.iter_mut().for_each(|v| *v -= mx);
-            exp_in_place(out);
-            let sj: f64 = out.iter().sum();
-            filtered[j] = sj;
-            total += sj;
+            filtered[j] = self.row_sum[j] * self.col[j];
+            total += filtered[j];
         }
-        let lc = mx + total.ln();
+        let lc = gmax + total.ln();
         let inv = 1.0 / total;
         filtered.iter_mut().for_each(|f| *f *= inv);
         // Segments ending at t.
         for j in 0..s {
-            let base = j * dm;
-            let ej = e[j];
-            let ongoing = &self.ongoing[base..base + n];
-            let pmf = &tb.log_pmf[base..base + n];
-            let out = &mut self.terms[base..base + n];
-            for ((o, a), l) in out.iter_mut().zip(ongoing).zip(pmf) {
-                *o = a + ej + l;
+            if self.row_max[j] == NEG_INF {
+                continue;
             }
-            self.ends[j] = log_sum_exp(out) - lc;
+            let c = self.ends[j];
+            self.ends[j] = if c >= EXACT_COMPLETION {
+                self.row_max[j] + c.ln() - lc
+            } else {
+                let base = j * dm;
+                let out = &mut self.terms[base..base + n];
+                kernels::add_max(
+                    out,
+                    &self.ongoing[base..base + n],
+                    &tb.log_pmf[base..base + n],
+                );
+                log_sum_exp(out) + e[j] - lc
+            };
         }
         // Segments starting at t + 1.
         for k in 0..s {
@@ -254,16 +286,17 @@ impl ForwardCore {
         // Advance the windows by one frame.
         let next = (n + 1).min(dm);
         for j in 0..s {
-            let r = e[j] - lc;
             let row = &mut self.ongoing[j * dm..j * dm + next];
-            row.copy_within(0..next - 1, 1);
-            row[1..].iter_mut().for_each(|v| *v += r);
-            row[0] = self.next_starts[j];
+            kernels::shift_in(row, e[j] - lc, self.next_starts[j]);
         }
         self.active = next;
         lc
     }
 }
+
+/// A completion sum (relative to its row's largest term) at least this large
+/// is exact: every term lost to underflow is below `10^{-300}` of that term.
+const EXACT_COMPLETION: f64 = 1e-280;
 
 /// Buffers of one sequence's forward-backward, reused across sequences.
 #[derive(Debug, Default)]
@@ -476,9 +509,7 @@ impl<E: Emission, D: Duration> Hsmm<E, D> {
             for k in 0..s {
                 let r = e_row[k] - lc;
                 let row = &mut window[k * dm..k * dm + next];
-                row.copy_within(0..next - 1, 1);
-                row[1..].iter_mut().for_each(|v| *v += r);
-                row[0] = r + e_hat[k];
+                kernels::shift_in(row, r, r + e_hat[k]);
             }
             active = next;
             // D̂_t, the segment starts σ_t and the duration counts.
@@ -487,34 +518,29 @@ impl<E: Emission, D: Duration> Hsmm<E, D> {
             for k in 0..s {
                 let base = k * dm;
                 let xs = &mut terms[..active];
-                for ((o, w), l) in xs
-                    .iter_mut()
-                    .zip(&window[base..base + active])
-                    .zip(&tb.log_pmf[base..base + active])
-                {
-                    *o = w + l;
-                }
+                let mut m = kernels::add_max(
+                    xs,
+                    &window[base..base + active],
+                    &tb.log_pmf[base..base + active],
+                );
                 if last <= dm {
                     xs[last - 1] = window[base + last - 1] + tb.log_last[base + last - 1];
+                    m = kernels::max(xs);
                 }
-                let m = xs.iter().copied().fold(NEG_INF, f64::max);
                 if m == NEG_INF {
                     d_cur[k] = NEG_INF;
                     sigma[k] = 0.0;
                     continue;
                 }
-                xs.iter_mut().for_each(|v| *v -= m);
+                kernels::sub(xs, m);
                 exp_in_place(xs);
-                let sum: f64 = xs.iter().sum();
+                let sum = kernels::sum(xs);
                 d_cur[k] = m + sum.ln();
                 let f = (start_row[k] + m).exp();
                 sigma[k] = f * sum;
                 if f > 0.0 {
                     let complete = if last <= dm { last - 1 } else { active };
-                    let dur = &mut acc.durations[base..base + complete];
-                    for (c, v) in dur.iter_mut().zip(xs.iter()) {
-                        *c += v * f;
-                    }
+                    kernels::axpy(&mut acc.durations[base..base + complete], xs, f);
                     if last <= dm {
                         let w = xs[last - 1] * f;
                         match self.censoring {
@@ -634,31 +660,26 @@ impl<E: Emission, D: Duration> Hsmm<E, D> {
                 return Err(self.impossible(t));
             }
             offset += n_t;
+            // Add frame t's emissions; the best segment of every state ending at t.
             let mut alive = false;
             for j in 0..s {
-                let r = e[j] - n_t;
-                for v in window[j * dm..j * dm + active].iter_mut() {
-                    *v += r;
-                    alive |= *v > NEG_INF;
-                }
+                let base = j * dm;
+                let row = &mut window[base..base + active];
+                let (d, v) = kernels::add_argmax(row, e[j] - n_t, &tb.log_pmf[base..base + active]);
+                completion[j] = v;
+                best_len[t * s + j] = d as u32 + 1;
+                // Some segment may still be going on (P(D ≥ d) ≥ p(d)).
+                alive |= v > NEG_INF
+                    || row
+                        .iter()
+                        .zip(&tb.log_survival[base..base + active])
+                        .any(|(w, l)| w + l > NEG_INF);
             }
             if !alive {
                 return Err(self.impossible(t));
             }
             if t == t_len - 1 {
                 break;
-            }
-            for j in 0..s {
-                let base = j * dm;
-                let mut best = (0usize, NEG_INF);
-                for d in 0..active {
-                    let v = window[base + d] + tb.log_pmf[base + d];
-                    if v > best.1 {
-                        best = (d, v);
-                    }
-                }
-                completion[j] = best.1;
-                best_len[t * s + j] = best.0 as u32 + 1;
             }
             let next = (active + 1).min(dm);
             for k in 0..s {

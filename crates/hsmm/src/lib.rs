@@ -123,6 +123,7 @@ pub mod filter;
 pub mod fit;
 pub mod inference;
 pub mod init;
+mod kernels;
 pub mod model;
 
 pub use duration::{

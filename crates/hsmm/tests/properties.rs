@@ -412,3 +412,42 @@ fn impossible_frames_are_located() {
     assert_eq!(f.frames_seen(), 4);
     assert!(m.viterbi(Frames::new(&data, 1).unwrap()).is_err());
 }
+
+/// A duration whose probability is far below the smallest double
+/// (`p_0(3) ≈ e^{−1100}`) is still a possible explanation: when the data
+/// leave no other, the likelihood, posteriors and Viterbi find it exactly
+/// (the linear shortcut of the forward pass falls back to log space).
+#[test]
+fn durations_below_the_double_range_are_not_lost() {
+    use phasekit_emission::Categorical;
+    use phasekit_hsmm::{AnyDuration, GaussianDuration};
+    let durations = GaussianDuration::new(60, vec![50.0, 5.0], vec![1.0, 2.0]).unwrap();
+    // State 0 emits symbol 0 only, state 1 symbol 1 only.
+    let emission = Categorical::new(2, vec![1.0, 0.0, 0.0, 1.0]).unwrap();
+    let m = Hsmm::new(
+        vec![1.0, 0.0],
+        vec![0.0, 1.0, 0.0, 0.0],
+        AnyDuration::from(durations),
+        emission,
+    )
+    .unwrap();
+    let data = [0.0, 0.0, 0.0, 1.0];
+    let seq = Frames::new(&data, 1).unwrap();
+    let lp0 = m.duration_log_pmf(0).unwrap()[2];
+    assert!(lp0 < -1000.0 && lp0.exp() == 0.0, "{lp0}");
+    // log π_0 + log p_0(3) + log a_01 + log P(D_1 ≥ 1); every emission has probability 1.
+    let want = lp0;
+    let got = m.log_likelihood(seq).unwrap();
+    assert!((got - want).abs() < 1e-9 * want.abs(), "{got} vs {want}");
+    let post = m.posteriors(seq).unwrap();
+    assert_eq!(post.gamma, vec![1.0, 0.0, 1.0, 0.0, 1.0, 0.0, 0.0, 1.0]);
+    assert!((post.expected_durations[2] - 1.0).abs() < 1e-12);
+    let v = m.viterbi(seq).unwrap();
+    assert_eq!(v.states, vec![0, 0, 0, 1]);
+    assert!((v.log_probability - want).abs() < 1e-9 * want.abs());
+    let mut f = m.filter();
+    for x in &data {
+        f.step(&[*x]).unwrap();
+    }
+    assert_eq!(f.belief(), &[0.0, 1.0]);
+}
