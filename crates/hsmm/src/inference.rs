@@ -37,19 +37,21 @@
 //! `γ_t = γ_{t+1} − σ_{t+1} + ε_t` (segments covering `t`).
 //!
 //! The cumulative sums are carried as the per-state windows of the last `D`
-//! starts (forward) or ends (backward), shifted by one frame and advanced by
-//! `e_j(t) − ℓ_t` at every frame, so that every term is a sum of at most
-//! `D` normalised log-densities (no cancellation of large cumulative sums,
-//! and the online filter runs forever at the same precision). Every
-//! log-sum-exp is taken exactly (shifted by its maximum, exponentials by the
-//! vectorised `exp_in_place`), so that no explanation of the data is lost to
-//! underflow however unlikely it is at first. Cost per frame:
-//! `O(S (S + D))`, no allocation.
+//! starts (forward) or ends (backward), advanced by one frame per step (see
+//! [`crate::window`]): every term is a sum of at most `D` normalised
+//! log-densities (no cancellation of large cumulative sums, and the online
+//! filter runs forever at the same precision), and the sums over durations
+//! are dot products of linear windows with the duration tables, with an
+//! exact log-space fallback wherever underflow could lose a term, so that no
+//! explanation of the data is lost however unlikely it is at first. Cost
+//! per frame: `O(S (S + D))` arithmetic and `O(S²)` exponentials, no
+//! allocation.
 
 use crate::duration::Duration;
 use crate::error::{HsmmError, Result};
 use crate::kernels;
 use crate::model::{Censoring, Hsmm};
+use crate::window::Windows;
 use phasekit_emission::linalg::{exp_in_place, log_sum_exp};
 use phasekit_emission::{Emission, Frames, SequenceSet};
 use serde::{Deserialize, Serialize};
@@ -133,8 +135,9 @@ pub struct ViterbiSegmentation {
     pub log_probability: f64,
 }
 
-/// The forward recursion between two frames: the window of the last `D`
-/// segment starts of every state, advanced by one frame per step.
+/// The forward recursion between two frames: the windows of the last `D`
+/// segment starts of every state (see [`crate::window`]), advanced by one
+/// frame per step.
 ///
 /// Both the batch [`Hsmm::forward`] and the online [`crate::HsmmFilter`]
 /// step this, so they agree to the last bit.
@@ -142,20 +145,17 @@ pub struct ViterbiSegmentation {
 pub(crate) struct ForwardCore {
     s: usize,
     dm: usize,
-    /// `[j·D + d − 1]`: `â_{t−d+1}(j) + L_j(t) − L_j(t−d+1)`, the normalised
-    /// log-probability of a segment of `j` that started `d − 1` frames before
-    /// the next frame `t`, emissions up to `t − 1` included.
-    ongoing: Vec<f64>,
-    /// Valid entries per row: `min(t + 1, D)` before frame `t`.
-    active: usize,
-    terms: Vec<f64>,
+    /// Entry `d` of state `j` before frame `t`: `â_{t−d+1}(j) + L_j(t) − L_j(t−d+1)`,
+    /// the normalised log-probability of a segment of `j` that started
+    /// `d − 1` frames before `t`, emissions up to `t − 1` included.
+    windows: Windows,
     /// `F̂_t(j)` of the last step.
     pub(crate) ends: Vec<f64>,
     /// `â_{t+1}(j)` of the last step.
     pub(crate) next_starts: Vec<f64>,
+    /// Log of every state's share of `ℓ_t`.
+    mass: Vec<f64>,
     col: Vec<f64>,
-    row_max: Vec<f64>,
-    row_sum: Vec<f64>,
 }
 
 impl ForwardCore {
@@ -164,49 +164,34 @@ impl ForwardCore {
         let mut core = ForwardCore {
             s,
             dm,
-            ongoing: vec![NEG_INF; s * dm],
-            active: 1,
-            terms: vec![0.0; s * dm],
+            windows: Windows::new(s, dm),
             ends: vec![NEG_INF; s],
             next_starts: vec![NEG_INF; s],
+            mass: vec![NEG_INF; s],
             col: vec![0.0; s],
-            row_max: vec![NEG_INF; s],
-            row_sum: vec![0.0; s],
         };
         core.reset(m);
         core
     }
 
-    /// Back to the state before the first frame.
+    /// Back to the state before the first frame: one segment start, `log π_j`.
     pub(crate) fn reset<E: Emission, D: Duration>(&mut self, m: &Hsmm<E, D>) {
-        self.ongoing.fill(NEG_INF);
-        for j in 0..self.s {
-            self.ongoing[j * self.dm] = m.tables.log_start[j];
-        }
-        self.active = 1;
+        self.windows.clear();
+        self.col.fill(0.0);
+        self.windows.advance(&self.col, &m.tables.log_start);
     }
 
     /// Copies another core's state (same shape) without allocating.
     pub(crate) fn copy_from(&mut self, other: &ForwardCore) {
-        self.ongoing.copy_from_slice(&other.ongoing);
-        self.active = other.active;
+        self.windows.copy_from(&other.windows);
     }
 
     /// Filters one frame with log-densities `e` (length `S`): writes
     /// `h_t = p(z_t | x_{≤t})` into `filtered`, leaves `F̂_t` in `ends` and
     /// `â_{t+1}` in `next_starts`, and returns `ℓ_t = log p(x_t | x_{<t})`.
     /// An impossible frame returns `−inf`, zeroes `filtered` and leaves the
-    /// recursion unchanged.
-    ///
-    /// One pass of exponentials per frame: with `x_d = e^{w_d + log P(D ≥ d) − m_j}`
-    /// (`w` the window of state `j`, `m_j` the row's maximum), the row's share
-    /// of `ℓ_t` is `e^{m_j} Σ_d x_d` and its completions are
-    /// `e^{m_j} Σ_d x_d h_j(d)` with the hazard `h_j(d) = p_j(d) / P(D_j ≥ d) ≤ 1`.
-    /// A term left out by underflow (`x_d` or `h_j(d)` below the smallest
-    /// normal number) is below `10^{-300}` of the row's largest, so the
-    /// completion sum is exact whenever it is at least `10^{-280}`; below
-    /// that (a segment that all but certainly goes on), the completions are
-    /// summed exactly in log space instead.
+    /// recursion unchanged. No exponential per window entry: the sums are
+    /// dot products of the linear windows with the duration tables.
     // The loops walk several per-state arrays in step; indices say so best.
     #[allow(clippy::needless_range_loop)]
     pub(crate) fn step<E: Emission, D: Duration>(
@@ -215,65 +200,49 @@ impl ForwardCore {
         e: &[f64],
         filtered: &mut [f64],
     ) -> f64 {
-        let (s, dm, n) = (self.s, self.dm, self.active);
+        let (s, dm) = (self.s, self.dm);
         let tb = &m.tables;
         let mut gmax = NEG_INF;
         for j in 0..s {
-            let base = j * dm;
-            let out = &mut self.terms[base..base + n];
-            let mj = kernels::add_max(
-                out,
-                &self.ongoing[base..base + n],
-                &tb.log_survival[base..base + n],
-            );
-            if mj == NEG_INF || e[j] == NEG_INF {
-                self.row_max[j] = NEG_INF;
-                self.row_sum[j] = 0.0;
-                self.ends[j] = NEG_INF;
-                continue;
+            let rows = j * dm..(j + 1) * dm;
+            let sums = if e[j] == NEG_INF {
+                None
+            } else {
+                self.windows.forward_sums(
+                    j,
+                    (&tb.survival[rows.clone()], &tb.log_survival[rows.clone()]),
+                    (&tb.pmf[rows.clone()], &tb.log_pmf[rows]),
+                )
+            };
+            match sums {
+                Some((going_on, ending)) => {
+                    let c = self.windows.scale(j) + e[j];
+                    self.mass[j] = c + going_on.log;
+                    self.ends[j] = c + ending.log;
+                    gmax = gmax.max(self.mass[j]);
+                }
+                None => {
+                    self.mass[j] = NEG_INF;
+                    self.ends[j] = NEG_INF;
+                }
             }
-            kernels::sub(out, mj);
-            exp_in_place(out);
-            let (sum, completion) = kernels::sum_and_dot(out, &tb.hazard[base..base + n]);
-            self.row_max[j] = mj + e[j];
-            self.row_sum[j] = sum;
-            self.ends[j] = completion;
-            gmax = gmax.max(self.row_max[j]);
         }
         if gmax == NEG_INF || gmax.is_nan() {
             filtered.fill(0.0);
             return NEG_INF;
         }
         for j in 0..s {
-            self.col[j] = self.row_max[j] - gmax;
+            self.col[j] = self.mass[j] - gmax;
         }
         exp_in_place(&mut self.col);
-        let mut total = 0.0;
-        for j in 0..s {
-            filtered[j] = self.row_sum[j] * self.col[j];
-            total += filtered[j];
-        }
+        let total = kernels::sum(&self.col);
         let lc = gmax + total.ln();
         let inv = 1.0 / total;
-        filtered.iter_mut().for_each(|f| *f *= inv);
-        // Segments ending at t.
-        for j in 0..s {
-            if self.row_max[j] == NEG_INF {
-                continue;
-            }
-            let c = self.ends[j];
-            self.ends[j] = if c >= EXACT_COMPLETION {
-                self.row_max[j] + c.ln() - lc
-            } else {
-                let base = j * dm;
-                let out = &mut self.terms[base..base + n];
-                kernels::add_max(
-                    out,
-                    &self.ongoing[base..base + n],
-                    &tb.log_pmf[base..base + n],
-                );
-                log_sum_exp(out) + e[j] - lc
-            };
+        for (f, c) in filtered.iter_mut().zip(&self.col) {
+            *f = c * inv;
+        }
+        for v in self.ends.iter_mut() {
+            *v -= lc;
         }
         // Segments starting at t + 1.
         for k in 0..s {
@@ -284,19 +253,13 @@ impl ForwardCore {
             self.next_starts[k] = log_sum_exp(&self.col);
         }
         // Advance the windows by one frame.
-        let next = (n + 1).min(dm);
         for j in 0..s {
-            let row = &mut self.ongoing[j * dm..j * dm + next];
-            kernels::shift_in(row, e[j] - lc, self.next_starts[j]);
+            self.col[j] = e[j] - lc;
         }
-        self.active = next;
+        self.windows.advance(&self.col, &self.next_starts);
         lc
     }
 }
-
-/// A completion sum (relative to its row's largest term) at least this large
-/// is exact: every term lost to underflow is below `10^{-300}` of that term.
-const EXACT_COMPLETION: f64 = 1e-280;
 
 /// Buffers of one sequence's forward-backward, reused across sequences.
 #[derive(Debug, Default)]
@@ -312,8 +275,7 @@ pub(crate) struct Workspace {
     pub(crate) gamma: Vec<f64>,
     core: Option<ForwardCore>,
     // Backward scratch.
-    window: Vec<f64>,
-    terms: Vec<f64>,
+    windows: Option<Windows>,
     d_next: Vec<f64>,
     d_cur: Vec<f64>,
     e_hat: Vec<f64>,
@@ -321,6 +283,7 @@ pub(crate) struct Workspace {
     sigma: Vec<f64>,
     sigma_next: Vec<f64>,
     x: Vec<f64>,
+    r_new: Vec<f64>,
 }
 
 /// Expected segment statistics accumulated by the backward pass.
@@ -435,8 +398,7 @@ impl<E: Emission, D: Duration> Hsmm<E, D> {
             ends,
             log_norm,
             gamma,
-            window,
-            terms,
+            windows,
             d_next,
             d_cur,
             e_hat,
@@ -444,11 +406,16 @@ impl<E: Emission, D: Duration> Hsmm<E, D> {
             sigma,
             sigma_next,
             x,
+            r_new,
             ..
         } = ws;
-        window.clear();
-        window.resize(s * dm, NEG_INF);
-        terms.resize(dm, 0.0);
+        let windows = match windows {
+            Some(w) if w.shape() == (s, dm) => {
+                w.clear();
+                w
+            }
+            slot => slot.insert(Windows::new(s, dm)),
+        };
         for v in [
             &mut *d_next,
             &mut *d_cur,
@@ -457,6 +424,7 @@ impl<E: Emission, D: Duration> Hsmm<E, D> {
             &mut *sigma,
             &mut *sigma_next,
             &mut *x,
+            &mut *r_new,
         ] {
             v.clear();
             v.resize(s, 0.0);
@@ -467,7 +435,6 @@ impl<E: Emission, D: Duration> Hsmm<E, D> {
                 gamma[last_row + j] = (ends[last_row + j] - lambda).exp();
             }
         }
-        let mut active = 0;
         for t in (0..t_len).rev() {
             let e_row = &log_b[t * s..(t + 1) * s];
             let lc = log_norm[t];
@@ -504,49 +471,61 @@ impl<E: Emission, D: Duration> Hsmm<E, D> {
                     }
                 }
             }
-            // Advance the windows of segment ends by one frame (backwards).
-            let next = (active + 1).min(dm);
+            // Advance the windows of segment ends by one frame (backwards):
+            // entry d of state k is the segment of k on frames t..t+d−1,
+            // `L_k(t+d) − L_k(t) + Ê_{t+d−1}(k)`.
             for k in 0..s {
-                let r = e_row[k] - lc;
-                let row = &mut window[k * dm..k * dm + next];
-                kernels::shift_in(row, r, r + e_hat[k]);
+                x[k] = e_row[k] - lc;
+                r_new[k] = x[k] + e_hat[k];
             }
-            active = next;
+            windows.advance(x, r_new);
             // D̂_t, the segment starts σ_t and the duration counts.
-            let last = t_len - t;
+            let n = windows.len();
+            // The oldest entry is the segment reaching the last frame.
+            let has_last = t_len - t <= dm;
             let start_row = &starts[t * s..(t + 1) * s];
             for k in 0..s {
-                let base = k * dm;
-                let xs = &mut terms[..active];
-                let mut m = kernels::add_max(
-                    xs,
-                    &window[base..base + active],
-                    &tb.log_pmf[base..base + active],
-                );
-                if last <= dm {
-                    xs[last - 1] = window[base + last - 1] + tb.log_last[base + last - 1];
-                    m = kernels::max(xs);
-                }
-                if m == NEG_INF {
+                let rows = k * dm..(k + 1) * dm;
+                // The last segment's weight beyond p(n): P(D ≥ n + 1) when censored.
+                let extra = match (has_last, self.censoring) {
+                    (true, Censoring::RightCensored) if n < dm => {
+                        (tb.survival[k * dm + n], tb.log_survival[k * dm + n])
+                    }
+                    _ => (0.0, NEG_INF),
+                };
+                let Some(sum) = windows.backward_sum(
+                    k,
+                    (&tb.pmf[rows.clone()], &tb.log_pmf[rows.clone()]),
+                    extra,
+                ) else {
                     d_cur[k] = NEG_INF;
                     sigma[k] = 0.0;
                     continue;
+                };
+                let c = windows.scale(k);
+                d_cur[k] = c + sum.log;
+                sigma[k] = (start_row[k] + d_cur[k]).exp();
+                if start_row[k] == NEG_INF {
+                    continue;
                 }
-                kernels::sub(xs, m);
-                exp_in_place(xs);
-                let sum = kernels::sum(xs);
-                d_cur[k] = m + sum.ln();
-                let f = (start_row[k] + m).exp();
-                sigma[k] = f * sum;
-                if f > 0.0 {
-                    let complete = if last <= dm { last - 1 } else { active };
-                    kernels::axpy(&mut acc.durations[base..base + complete], xs, f);
-                    if last <= dm {
-                        let w = xs[last - 1] * f;
-                        match self.censoring {
-                            Censoring::RightCensored => acc.censored[base + last - 1] += w,
-                            Censoring::EndsWithSegment => acc.durations[base + last - 1] += w,
-                        }
+                // Each count is a posterior probability, e^{â_t(k) + c + u_d} p(d) ≤ 1.
+                let lf = start_row[k] + c;
+                let linear = !sum.exact_log && lf < 700.0;
+                let censored_last = has_last && self.censoring == Censoring::RightCensored;
+                let complete = if censored_last { n - 1 } else { n };
+                windows.accumulate(
+                    k,
+                    complete,
+                    &mut acc.durations[rows.clone()],
+                    lf,
+                    (&tb.pmf[rows.clone()], &tb.log_pmf[rows.clone()]),
+                    linear,
+                );
+                if censored_last {
+                    let (_, un) = windows.entry(k, n);
+                    let v = lf + un + tb.log_survival[k * dm + n - 1];
+                    if v > NEG_INF {
+                        acc.censored[k * dm + n - 1] += v.exp();
                     }
                 }
             }

@@ -99,51 +99,48 @@ pub(crate) fn sum(v: &[f64]) -> f64 {
     reduce_sum(acc)
 }
 
-/// `(Σ_d x[d], Σ_d x[d] h[d])`.
+/// `(Σ_d w[d] a[d], Σ_d w[d] b[d], max_d w[d])` (`w ≥ 0`; max 0 for an empty slice).
+///
+/// Four lanes: three accumulators of four lanes fit the registers of every
+/// x86-64 CPU (eight lanes spill on SSE2).
 #[inline]
-pub(crate) fn sum_and_dot(x: &[f64], h: &[f64]) -> (f64, f64) {
-    let n = x.len();
-    let h = &h[..n];
-    let mut s = [0.0; LANES];
-    let mut p = [0.0; LANES];
-    let split = n - n % LANES;
-    for (c, g) in x[..split]
-        .chunks_exact(LANES)
-        .zip(h[..split].chunks_exact(LANES))
+pub(crate) fn dot2_max(w: &[f64], a: &[f64], b: &[f64]) -> (f64, f64, f64) {
+    const L: usize = 4;
+    let n = w.len();
+    let (a, b) = (&a[..n], &b[..n]);
+    let mut x = [0.0; L];
+    let mut y = [0.0; L];
+    let mut m = [0.0; L];
+    let split = n - n % L;
+    for ((c, p), q) in w[..split]
+        .chunks_exact(L)
+        .zip(a[..split].chunks_exact(L))
+        .zip(b[..split].chunks_exact(L))
     {
-        for l in 0..LANES {
-            s[l] += c[l];
-            p[l] += c[l] * g[l];
+        for l in 0..L {
+            x[l] += c[l] * p[l];
+            y[l] += c[l] * q[l];
+            m[l] = max2(m[l], c[l]);
         }
     }
     for d in split..n {
-        s[d - split] += x[d];
-        p[d - split] += x[d] * h[d];
+        let l = d - split;
+        x[l] += w[d] * a[d];
+        y[l] += w[d] * b[d];
+        m[l] = max2(m[l], w[d]);
     }
-    (reduce_sum(s), reduce_sum(p))
+    (
+        (x[0] + x[2]) + (x[1] + x[3]),
+        (y[0] + y[2]) + (y[1] + y[3]),
+        max2(max2(m[0], m[2]), max2(m[1], m[3])),
+    )
 }
 
-/// `v[d] −= m`.
+/// `acc[d] += f · w[d] · t[d]`.
 #[inline]
-pub(crate) fn sub(v: &mut [f64], m: f64) {
-    v.iter_mut().for_each(|x| *x -= m);
-}
-
-/// Shifts `row` right by one (the last entry falls off), adds `r` to the
-/// shifted entries and puts `first` in front.
-#[inline]
-pub(crate) fn shift_in(row: &mut [f64], r: f64, first: f64) {
-    let n = row.len();
-    row.copy_within(0..n - 1, 1);
-    row[1..].iter_mut().for_each(|v| *v += r);
-    row[0] = first;
-}
-
-/// `acc[d] += x[d] · f`.
-#[inline]
-pub(crate) fn axpy(acc: &mut [f64], x: &[f64], f: f64) {
-    for (a, v) in acc.iter_mut().zip(x) {
-        *a += v * f;
+pub(crate) fn axpy_product(acc: &mut [f64], w: &[f64], t: &[f64], f: f64) {
+    for ((a, x), y) in acc.iter_mut().zip(w).zip(t) {
+        *a += f * (x * y);
     }
 }
 
@@ -205,9 +202,16 @@ mod tests {
             assert_eq!(m, want.iter().copied().fold(NEG_INF, f64::max));
             assert_eq!(max(&a), a.iter().copied().fold(NEG_INF, f64::max));
             assert!((sum(&a) - a.iter().sum::<f64>()).abs() < 1e-12);
-            let (s, p) = sum_and_dot(&a, &b);
-            assert!((s - a.iter().sum::<f64>()).abs() < 1e-12);
-            assert!((p - a.iter().zip(&b).map(|(x, y)| x * y).sum::<f64>()).abs() < 1e-12);
+            let w: Vec<f64> = a.iter().map(|v| v.abs()).collect();
+            let (x, y, m) = dot2_max(&w, &a, &b);
+            assert!((x - w.iter().zip(&a).map(|(p, q)| p * q).sum::<f64>()).abs() < 1e-12);
+            assert!((y - w.iter().zip(&b).map(|(p, q)| p * q).sum::<f64>()).abs() < 1e-12);
+            assert_eq!(m, w.iter().copied().fold(0.0, f64::max));
+            let mut acc = vec![1.0; n];
+            axpy_product(&mut acc, &w, &b, 2.0);
+            for d in 0..n {
+                assert_eq!(acc[d], 1.0 + 2.0 * (w[d] * b[d]));
+            }
             let mut v = a.clone();
             let (i, best) = add_argmax(&mut v, 1.0, &b);
             let plain: Vec<f64> = a.iter().zip(&b).map(|(x, y)| x + 1.0 + y).collect();

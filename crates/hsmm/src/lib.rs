@@ -125,6 +125,9 @@ pub mod inference;
 pub mod init;
 mod kernels;
 pub mod model;
+#[cfg(test)]
+mod reference;
+mod window;
 
 pub use duration::{
     AnyDuration, Duration, DurationEvent, DurationRegularisation, DurationReport, GaussianDuration,

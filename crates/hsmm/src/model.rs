@@ -83,8 +83,10 @@ pub(crate) struct Tables {
     pub(crate) log_survival: Vec<f64>,
     /// The weight of the last segment: `log_survival` or `log_pmf` by censoring.
     pub(crate) log_last: Vec<f64>,
-    /// The hazard `p_i(d) / P(D_i ≥ d)` (0 where `P(D_i ≥ d) = 0`), linear.
-    pub(crate) hazard: Vec<f64>,
+    /// `p_i(d)`, linear (0 below the smallest double).
+    pub(crate) pmf: Vec<f64>,
+    /// `P(D_i ≥ d)`, linear.
+    pub(crate) survival: Vec<f64>,
 }
 
 impl<E: Emission, D: Duration> TryFrom<HsmmParams<E, D>> for Hsmm<E, D> {
@@ -284,18 +286,8 @@ impl<E: Emission, D: Duration> Hsmm<E, D> {
             // P(D ≥ 1) = 1 exactly.
             surv[0] = 0.0;
         }
-        t.hazard = t
-            .log_pmf
-            .iter()
-            .zip(&t.log_survival)
-            .map(|(p, s)| {
-                if *s == f64::NEG_INFINITY {
-                    0.0
-                } else {
-                    (p - s).exp().min(1.0)
-                }
-            })
-            .collect();
+        t.pmf = t.log_pmf.iter().map(|l| l.exp()).collect();
+        t.survival = t.log_survival.iter().map(|l| l.exp()).collect();
         t.log_last = match self.censoring {
             Censoring::RightCensored => t.log_survival.clone(),
             Censoring::EndsWithSegment => t.log_pmf.clone(),
