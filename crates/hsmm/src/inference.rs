@@ -37,8 +37,8 @@
 //! `γ_t = γ_{t+1} − σ_{t+1} + ε_t` (segments covering `t`).
 //!
 //! The cumulative sums are carried as the per-state windows of the last `D`
-//! starts (forward) or ends (backward), advanced by one frame per step (see
-//! [`crate::window`]): every term is a sum of at most `D` normalised
+//! starts (forward) or ends (backward), advanced by one frame per step (the
+//! `window` module): every term is a sum of at most `D` normalised
 //! log-densities (no cancellation of large cumulative sums, and the online
 //! filter runs forever at the same precision), and the sums over durations
 //! are dot products of linear windows with the duration tables, with an
@@ -136,7 +136,7 @@ pub struct ViterbiSegmentation {
 }
 
 /// The forward recursion between two frames: the windows of the last `D`
-/// segment starts of every state (see [`crate::window`]), advanced by one
+/// segment starts of every state (see the `window` module), advanced by one
 /// frame per step.
 ///
 /// Both the batch [`Hsmm::forward`] and the online [`crate::HsmmFilter`]
