@@ -124,6 +124,17 @@ impl Default for HsmmInit {
     }
 }
 
+/// A maximum duration for `n_states` states on `data`: three times the
+/// longest sequence divided by the number of states (a phase may last three
+/// times its share of the longest demonstration), at most the longest
+/// sequence and at least 1. The cost of every recursion grows linearly with it.
+pub fn suggested_max_duration(data: &SequenceSet, n_states: usize) -> usize {
+    let longest = data.lengths().max().unwrap_or(1);
+    (3 * longest)
+        .div_ceil(n_states.max(1))
+        .clamp(1, longest.max(1))
+}
+
 /// Initial duration counts of one state from observed segment lengths:
 /// a discretised Gaussian at their mean `m` with width
 /// `max(standard deviation, m / 2, 1)` (wide, so that EM can move the

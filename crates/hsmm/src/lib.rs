@@ -139,6 +139,8 @@ pub use fit::{
     Convergence, HsmmEm, HsmmEmBuilder, HsmmFit, HsmmFitReport, HsmmStatistics, HsmmUpdate,
 };
 pub use inference::{HsmmForward, HsmmPosteriors, Segment, ViterbiSegmentation};
-pub use init::{duration_counts, initialise, HsmmInit, InitSettings, Structure};
+pub use init::{
+    duration_counts, initialise, suggested_max_duration, HsmmInit, InitSettings, Structure,
+};
 pub use model::{Censoring, Hsmm, HSMM_FORMAT_VERSION};
 pub use phasekit_emission as emission;

@@ -243,6 +243,10 @@ fn derived_quantities() {
     }
     let np = NonParametricDuration::new(3, vec![0.5, 0.0, 0.5, 0.2, 0.3, 0.5]).unwrap();
     assert_eq!(np.n_parameters(), 1 + 2);
+    let set = SequenceSet::new(&[vec![0.0; 10], vec![0.0; 20]], 1).unwrap();
+    assert_eq!(phasekit_hsmm::suggested_max_duration(&set, 4), 15);
+    assert_eq!(phasekit_hsmm::suggested_max_duration(&set, 1), 20);
+    assert_eq!(phasekit_hsmm::suggested_max_duration(&set, 100), 1);
 }
 
 proptest! {
