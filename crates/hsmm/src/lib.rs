@@ -43,13 +43,13 @@
 //!
 //! ```text
 //! â_0(j)     = log π_j
-//! ℓ_t        = log Σ_j Σ_{d=1}^{D} exp(â_{t−d+1}(j) + L_j(t+1) − L_j(t−d+1) + ℓ_t) · P(D_j ≥ d)
+//! ℓ_t        = log Σ_j Σ_{d=1}^{D} exp(â_{t−d+1}(j) + L_j(t) − L_j(t−d+1)) · b_j(x_t) · P(D_j ≥ d)
 //! F̂_t(j)     = log Σ_{d=1}^{D} exp(â_{t−d+1}(j) + L_j(t+1) − L_j(t−d+1)) · p_j(d)
 //! â_{t+1}(k) = log Σ_i exp(F̂_t(i)) · a_ik
 //! ```
 //!
-//! (the `ℓ_t` inside the first sum cancels the one in `L_j(t+1)`: the sum is
-//! over the segments still going on at `t`). The filtered marginal
+//! (the first sum runs over the segments still going on at `t`, each of `j`
+//! started `d − 1` frames earlier; the second over those ending at `t`). The filtered marginal
 //! `h_t(j) = p(z_t = j | x_{≤t})` is the share of state `j` in `ℓ_t`'s sum,
 //! and `log p(x) = Σ_t ℓ_t` for a right-censored last segment. The cost is
 //! `O(S (S + D))` per frame, linear in the maximum duration `D`; the
