@@ -13,7 +13,7 @@
 use crate::error::{HmmError, Result};
 use crate::inference::ForwardCore;
 use crate::model::Hmm;
-use phasekit_emission::{Emission, EmissionError, Frames};
+use phasekit_emission::{Emission, EmissionError, Frames, Marginal};
 
 /// Incremental forward filter over a (possibly marginal) HMM.
 #[derive(Debug, Clone)]
@@ -40,11 +40,6 @@ impl<E: Emission> ForwardFilter<E> {
             frames: 0,
             hmm,
         }
-    }
-
-    /// A filter over the marginal of `hmm` on the dimensions `dims` (e.g. the human's).
-    pub fn on_dims(hmm: &Hmm<E>, dims: &[usize]) -> Result<Self> {
-        Ok(Self::new(hmm.marginal(dims)?))
     }
 
     /// The model the filter runs on.
@@ -115,5 +110,12 @@ impl<E: Emission> Hmm<E> {
     /// An online filter over this model.
     pub fn filter(&self) -> ForwardFilter<E> {
         ForwardFilter::new(self.clone())
+    }
+}
+
+impl<E: Marginal> ForwardFilter<E> {
+    /// A filter over the marginal of `hmm` on the dimensions `dims` (e.g. the human's).
+    pub fn on_dims(hmm: &Hmm<E>, dims: &[usize]) -> Result<Self> {
+        Ok(Self::new(hmm.marginal(dims)?))
     }
 }
