@@ -190,16 +190,16 @@ pub unsafe fn sq_norms16_avx2_fma(packed: &[f64], d: usize, xt: &[f64], out: &mu
         for k in 0..=r {
             let a = _mm256_broadcast_sd(&*row.add(k));
             let xk = x.add(k * LANES);
-            for q in 0..4 {
-                z[q] = _mm256_fmadd_pd(a, _mm256_loadu_pd(xk.add(4 * q)), z[q]);
+            for (q, zq) in z.iter_mut().enumerate() {
+                *zq = _mm256_fmadd_pd(a, _mm256_loadu_pd(xk.add(4 * q)), *zq);
             }
         }
-        for q in 0..4 {
-            acc[q] = _mm256_fmadd_pd(z[q], z[q], acc[q]);
+        for (aq, zq) in acc.iter_mut().zip(&z) {
+            *aq = _mm256_fmadd_pd(*zq, *zq, *aq);
         }
     }
-    for q in 0..4 {
-        _mm256_storeu_pd(out.as_mut_ptr().add(4 * q), acc[q]);
+    for (q, aq) in acc.iter().enumerate() {
+        _mm256_storeu_pd(out.as_mut_ptr().add(4 * q), *aq);
     }
 }
 
@@ -350,7 +350,7 @@ unsafe fn sub_scalar_avx2(dst: &mut [f64], src: &[f64], m: f64) {
 #[inline(always)]
 pub fn centre_weight(x: &[f64], c: f64, w: &[f64], d: &mut [f64], a: &mut [f64]) -> f64 {
     let n = x.len();
-    assert!(n % 4 == 0 && w.len() == n && d.len() == n && a.len() == n);
+    assert!(n.is_multiple_of(4) && w.len() == n && d.len() == n && a.len() == n);
     #[cfg(target_arch = "x86_64")]
     {
         if has_avx2_fma() {
@@ -393,7 +393,7 @@ unsafe fn centre_weight_avx2(x: &[f64], c: f64, w: &[f64], d: &mut [f64], a: &mu
 /// combined pairwise; `v.len()` must be a multiple of `L`.
 #[inline(always)]
 pub fn lane_sum<const L: usize>(v: &[f64]) -> f64 {
-    assert!(v.len() % L == 0);
+    assert!(v.len().is_multiple_of(L));
     let mut acc = [0.0; L];
     for chunk in v.chunks_exact(L) {
         for l in 0..L {
@@ -428,7 +428,7 @@ pub fn reduce_lanes<const L: usize>(mut acc: [f64; L]) -> f64 {
 /// twelve accumulators) and the portable form do the same arithmetic, lane by lane.
 #[inline(always)]
 pub fn dot_tile(a: &[f64], b: &[f64], m: usize, r0: usize, c0: usize) -> [[f64; 3]; 4] {
-    assert!(m % DOT_LANES == 0 && a.len() >= (r0 + 4) * m && b.len() >= (c0 + 3) * m);
+    assert!(m.is_multiple_of(DOT_LANES) && a.len() >= (r0 + 4) * m && b.len() >= (c0 + 3) * m);
     let rows: [&[f64]; 7] = [
         &a[r0 * m..(r0 + 1) * m],
         &a[(r0 + 1) * m..(r0 + 2) * m],
