@@ -32,7 +32,10 @@ const SIZES: [(usize, usize); 9] = [
 ];
 
 fn kinds() -> [(CovarianceType, &'static str); 2] {
-    [(CovarianceType::Full, "full"), (CovarianceType::Tied, "tied")]
+    [
+        (CovarianceType::Full, "full"),
+        (CovarianceType::Tied, "tied"),
+    ]
 }
 
 fn log_density(c: &mut Criterion) {

@@ -6,6 +6,7 @@
 //! cargo run --release -p phasekit-emission --example kernel_table            # the whole grid
 //! cargo run --release -p phasekit-emission --example kernel_table -- quick   # S = 8, 16 × D = 12, 36
 //! cargo run --release -p phasekit-emission --example kernel_table -- peak    # the peak alone
+//! cargo run --release -p phasekit-emission --example kernel_table -- sizes full 10 2 8 3   # chosen (S, D)
 //! # one kernel, a fixed number of calls (for `valgrind --tool=callgrind`):
 //! cargo run --release -p phasekit-emission --example kernel_table -- call log_density full 8 36 soft 200
 //! ```
@@ -182,6 +183,14 @@ fn main() {
             table(&sizes, &["full", "tied"]);
         }
         Some("quick") => table(&[(8, 12), (16, 12), (8, 36), (16, 36)], &["full"]),
+        Some("sizes") => {
+            // sizes KIND S D [S D ...]
+            let sizes: Vec<(usize, usize)> = args[2..]
+                .chunks_exact(2)
+                .map(|p| (p[0].parse().unwrap(), p[1].parse().unwrap()))
+                .collect();
+            table(&sizes, &[args[1].as_str()]);
+        }
         Some("peak") => peak_both(),
         Some("call") => {
             // call KERNEL KIND S D soft|sparse REPS
@@ -202,6 +211,6 @@ fn main() {
             }
             black_box((&c.out, &stats));
         }
-        Some(other) => panic!("unknown mode {other}: grid, quick, peak or call"),
+        Some(other) => panic!("unknown mode {other}: grid, quick, sizes, peak or call"),
     }
 }

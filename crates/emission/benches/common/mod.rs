@@ -30,7 +30,9 @@ pub fn statistics_flops(d: usize) -> f64 {
 pub fn random_pd(d: usize, rng: &mut ChaCha8Rng) -> Vec<f64> {
     let a = DMatrix::from_fn(d, d, |_, _| rng.random_range(-1.0..1.0));
     let m = &a * a.transpose() / d as f64 + DMatrix::identity(d, d) * 0.3;
-    (0..d * d).map(|k| 0.5 * (m[(k / d, k % d)] + m[(k % d, k / d)])).collect()
+    (0..d * d)
+        .map(|k| 0.5 * (m[(k / d, k % d)] + m[(k % d, k / d)]))
+        .collect()
 }
 
 /// `s` states of dimension `d`, means in `U(−2, 2)`.
