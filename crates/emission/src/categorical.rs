@@ -42,7 +42,7 @@ impl From<Categorical> for CategoricalParams {
 
 /// Checks that `rows` (row-major, rows of length `k`) are probability vectors.
 pub(crate) fn check_stochastic_rows(name: &'static str, rows: &[f64], k: usize) -> Result<()> {
-    if k == 0 || rows.is_empty() || rows.len() % k != 0 {
+    if k == 0 || rows.is_empty() || !rows.len().is_multiple_of(k) {
         return Err(EmissionError::InvalidParameter {
             name,
             reason: format!("{} values do not form rows of length {k}", rows.len()),

@@ -37,7 +37,7 @@ impl<'a> Frames<'a> {
                 reason: "frames must have at least one dimension".into(),
             });
         }
-        if data.len() % dim != 0 {
+        if !data.len().is_multiple_of(dim) {
             return Err(EmissionError::DimensionMismatch {
                 context: "frames: data length is not a multiple of the dimension",
                 expected: dim * (data.len() / dim + 1),

@@ -166,7 +166,7 @@ pub fn lloyd(frames: Frames<'_>, mut centroids: Vec<f64>, max_iter: usize) -> Re
             reason: "a centroid value is not finite".into(),
         });
     }
-    if n == 0 || centroids.is_empty() || centroids.len() % d != 0 {
+    if n == 0 || centroids.is_empty() || !centroids.len().is_multiple_of(d) {
         return Err(EmissionError::InvalidParameter {
             name: "centroids",
             reason: format!(

@@ -44,7 +44,7 @@ impl From<Poisson> for PoissonParams {
 impl Poisson {
     /// `S = rates.len() / dim` states; every rate finite and non-negative.
     pub fn new(dim: usize, rates: Vec<f64>) -> Result<Self> {
-        if dim == 0 || rates.is_empty() || rates.len() % dim != 0 {
+        if dim == 0 || rates.is_empty() || !rates.len().is_multiple_of(dim) {
             return Err(EmissionError::InvalidParameter {
                 name: "rates",
                 reason: format!(

@@ -1,76 +1,102 @@
-//! The Gaussian's packed kernels: full/tied log-densities of blocks of frames
-//! and of one frame under every state, and the blocked accumulation of the
-//! full/tied sufficient statistics, with their AVX2/FMA builds. Each does
-//! exactly the arithmetic of the one-frame reference form
-//! ([`Gaussian::log_density_one`], the textbook accumulation), so that the
-//! results do not depend on how frames are split or on the CPU; the tests at
-//! the end of this file hold them to it.
+//! The Gaussian's full/tied kernels: log-densities of blocks of frames (and
+//! of one frame under every state), and the weighted accumulation of the
+//! sufficient statistics.
+//!
+//! Both are written once, generic over the [`Lanes`] of [`super::simd`], and
+//! compiled for AVX-512, for AVX2 + FMA and portably; the lanes of a vector
+//! never exchange values, so every build gives the same bits (see
+//! [`super::simd`]). Each value is computed by a fixed sequence of IEEE
+//! operations that does not depend on how the frames are split into calls or
+//! blocks either:
+//!
+//! * log-density of frame `t` under state `i` (exactly the arithmetic of the
+//!   one-frame reference [`Gaussian::log_density_one`]): `y = x_t − μ_i`,
+//!   `z_r = Σ_{k ≤ r} W_rk y_k` by fused multiply-adds in increasing `k` from
+//!   `0`, `m = Σ_r z_r²` by fused multiply-adds in increasing `r` from `0`,
+//!   `log b = log_norm_i − ½ m`, with `W = L⁻¹` packed;
+//! * statistics of state `i`: over the frames with a weight that counts
+//!   (`|w| ≥` [`NEGLIGIBLE_WEIGHT`]), in frame order and continuing from the
+//!   values already in the statistics: `n_i ← n_i + w`, `e = x_t − c_i`,
+//!   `a = w·e`, `s_i ← s_i + a`, `Q_i[r][c] ← fma(a_r, e_c, Q_i[r][c])` for
+//!   `c ≤ r`, and the range `lo`/`hi` of every dimension.
+//!
+//! The tests at the end of this file hold every build to these definitions
+//! and to the textbook formulas.
 
+use super::simd::{isa, Isa, Lanes, Portable};
+#[cfg(target_arch = "x86_64")]
+use super::simd::{Avx2, Avx512};
 use super::{Gaussian, GaussianStats};
-use crate::linalg::{self, packed_len, LANES};
+use crate::linalg::{self, packed_len};
 use crate::{CovarianceType, Frames};
 
+/// Weights below this in magnitude, `2⁻⁶⁰⁰ ≈ 2.4·10⁻¹⁸¹`, count as zero in
+/// the Gaussian's statistics.
+///
+/// Posteriors of well-separated models span hundreds of orders of magnitude
+/// (on the NuiSI demonstrations about 5 % of the state·frame weights lie
+/// between `10⁻³⁰⁸` and `10⁻¹⁸⁰`). Their terms are far below the rounding of
+/// any statistic that has a weight of ordinary size, but products such as
+/// `w·e_r·e_c` with `w ≈ 10⁻³⁰⁰` are subnormal, and on x86 every subnormal
+/// result costs a microcode assist of about a hundred cycles (with 1.5 % of
+/// the products subnormal, the accumulation ran ten times slower). Setting
+/// the CPU to flush subnormals to zero would avoid that only on some CPUs,
+/// giving different numbers on others; leaving out the negligible weights
+/// themselves gives the same numbers everywhere: with `|w| ≥ 2⁻⁶⁰⁰`, a term
+/// is subnormal only where `|e_r e_c| < 2⁻⁴²²`, i.e. for data whose values
+/// differ by less than `10⁻⁶³`.
+pub const NEGLIGIBLE_WEIGHT: f64 = f64::from_bits((1023 - 600) << 52);
+
+/// True when weight `w` counts in the statistics (`|w| ≥` [`NEGLIGIBLE_WEIGHT`];
+/// a NaN counts, so that it shows in the statistics rather than vanishing).
+#[inline(always)]
+pub(super) fn counts(w: f64) -> bool {
+    w.abs() >= NEGLIGIBLE_WEIGHT || w.is_nan()
+}
+
+/// Vectors of frames per block of the log-density kernel (the last block
+/// of a call may use fewer): 32 frames with AVX-512, 16 otherwise.
+const LD_VECTORS: usize = 4;
+
 impl Gaussian {
-    /// Full/tied log-densities of the frames of `data` (row-major `T × D`),
-    /// written into `out` (`T × S`); returns how many leading frames were done
-    /// (all of them, or all but a last single frame, which the caller
-    /// evaluates by [`Gaussian::log_density_one`]).
-    ///
-    /// Frames go by blocks of [`LANES`] (the last block padded): each block is
-    /// transposed once (`D × LANES`), centred on each state's mean and whitened
-    /// by [`linalg::sq_norms`], whose lanes do exactly the arithmetic of
-    /// [`Gaussian::log_density_one`], so that the result does not depend on how
-    /// the frames are split into calls.
-    #[inline(always)]
-    pub(super) fn full_blocks(&self, data: &[f64], out: &mut [f64]) -> usize {
+    /// Full/tied log-densities of complete frames (`data` row-major `T × D`)
+    /// into `out` (`T × S`), with the instruction set of this CPU.
+    pub(super) fn full_log_density(&self, data: &[f64], out: &mut [f64]) {
+        self.full_log_density_with(isa(), data, out)
+    }
+
+    /// [`Gaussian::full_log_density`] with the build for `isa`, which the CPU
+    /// must support (see [`Isa::available`]).
+    pub(super) fn full_log_density_with(&self, isa: Isa, data: &[f64], out: &mut [f64]) {
         let (s, d) = (self.n_states, self.dim);
-        let t_len = data.len() / d;
-        let done = if t_len % LANES == 1 { t_len - 1 } else { t_len };
-        if done == 0 {
-            return 0;
+        assert!(data.len().is_multiple_of(d) && out.len() == data.len() / d * s);
+        if data.len() == d {
+            // One frame (the online filter): the states go in the lanes.
+            self.full_one_frame_with(isa, data, out);
+            return;
         }
-        let pl = packed_len(d);
-        let mut xt = vec![0.0; d * LANES];
-        let mut xc = vec![0.0; d * LANES];
-        let mut maha = [0.0; LANES];
-        for t0 in (0..done).step_by(LANES) {
-            let nt = LANES.min(done - t0);
-            let block = &data[t0 * d..(t0 + nt) * d];
-            for (l, x) in block.chunks_exact(d).enumerate() {
-                for (k, v) in x.iter().enumerate() {
-                    xt[k * LANES + l] = *v;
-                }
+        match isa {
+            #[cfg(target_arch = "x86_64")]
+            Isa::Avx512 => {
+                assert!(Isa::available().contains(&Isa::Avx512));
+                // SAFETY: the CPU supports AVX-512F (asserted above).
+                unsafe { log_density_avx512(self, data, out) }
             }
-            // Padding lanes repeat the last frame (finite; their results are dropped).
-            for row in xt.chunks_exact_mut(LANES) {
-                let last = row[nt - 1];
-                row[nt..].fill(last);
+            #[cfg(target_arch = "x86_64")]
+            Isa::Avx2 => {
+                assert!(Isa::available().contains(&Isa::Avx2));
+                // SAFETY: the CPU supports AVX2 and FMA (asserted above).
+                unsafe { log_density_avx2(self, data, out) }
             }
-            for i in 0..s {
-                let mu = &self.means[i * d..(i + 1) * d];
-                for (k, m) in mu.iter().enumerate() {
-                    let row = k * LANES..(k + 1) * LANES;
-                    linalg::sub_scalar(&mut xc[row.clone()], &xt[row], *m);
-                }
-                let w = match self.kind {
-                    CovarianceType::Full => &self.whiten[i * pl..(i + 1) * pl],
-                    _ => &self.whiten[..pl],
-                };
-                linalg::packed_lower_sq_norms(w, d, &xc, &mut maha);
-                let ln = self.log_norm[i];
-                for (l, m) in maha[..nt].iter().enumerate() {
-                    out[(t0 + l) * s + i] = ln - 0.5 * m;
-                }
-            }
+            _ => log_density_blocks::<Portable, 2>(self, data, out),
         }
-        done
     }
 
     /// Full/tied log-densities of one frame `x` under every state, into `out`
     /// (length `S`): the states go as the lanes of [`linalg::sq_norms_lanes`],
     /// each lane doing exactly the arithmetic of [`Gaussian::log_density_one`].
     #[inline(always)]
-    pub(super) fn full_one_frame(&self, x: &[f64], out: &mut [f64]) {
+    fn full_one_frame(&self, x: &[f64], out: &mut [f64]) {
         let (s, d) = (self.n_states, self.dim);
         let (pl, sl) = (packed_len(d), linalg::STATE_LANES);
         let mut stack = [0.0; 64 * linalg::STATE_LANES];
@@ -107,184 +133,83 @@ impl Gaussian {
         }
     }
 
-    /// The full/tied part of [`Emission::accumulate`]: for every state `i`,
-    /// `n_i += Σ_t w_ti`, `s_i += Σ_t w_ti (x_t − c_i)` and the lower triangle of
-    /// `Q_i += Σ_t w_ti (x_t − c_i)(x_t − c_i)ᵀ`.
-    ///
-    /// Frames go by chunks of [`ACC_CHUNK`], transposed once (`D × chunk`);
-    /// per state the centred frames and their weighted copy are formed and
-    /// `Q_i` is computed by 4 × 3 tiles of dot products over the frames
-    /// ([`linalg::dot_tile`], a fixed number of interleaved partial sums, so
-    /// that the result does not depend on the SIMD width). Zero-weight frames
-    /// add exact zeros; they are left out of the range (`lo`/`hi`) only.
-    #[inline(always)]
+    /// [`Gaussian::full_one_frame`] with the build for `isa` (the CPU must
+    /// support it).
+    fn full_one_frame_with(&self, isa: Isa, x: &[f64], out: &mut [f64]) {
+        #[cfg(target_arch = "x86_64")]
+        {
+            if isa >= Isa::Avx2 {
+                assert!(Isa::available().contains(&Isa::Avx2));
+                // SAFETY: the CPU supports AVX2 and FMA (asserted above).
+                unsafe { full_one_frame_avx2_fma(self, x, out) };
+                return;
+            }
+        }
+        let _ = isa;
+        self.full_one_frame(x, out)
+    }
+
+    /// The full/tied part of [`Emission::accumulate`](crate::Emission::accumulate)
+    /// for complete frames, with the instruction set of this CPU (see the
+    /// module documentation for the arithmetic).
     pub(super) fn accumulate_full(
         &self,
         frames: Frames<'_>,
         weights: &[f64],
         stats: &mut GaussianStats,
     ) {
+        self.accumulate_full_with(isa(), frames, weights, stats)
+    }
+
+    /// [`Gaussian::accumulate_full`] with the build for `isa`, which the CPU
+    /// must support.
+    pub(super) fn accumulate_full_with(
+        &self,
+        isa: Isa,
+        frames: Frames<'_>,
+        weights: &[f64],
+        stats: &mut GaussianStats,
+    ) {
         let (s, d) = (self.n_states, self.dim);
-        // Rows padded for whole 4 × 3 tiles.
-        let dp = d.next_multiple_of(4).max(d.next_multiple_of(3)) + 3;
-        let t_len = frames.len();
         let data = frames.as_slice();
-        let cap = ACC_CHUNK.min(t_len.next_multiple_of(AL));
-        let mut xt = vec![0.0; d * cap];
-        let mut xz = vec![0.0; d * cap];
-        // Rows d..dp are zero: the padding of the tiles.
-        let mut dt = vec![0.0; dp * cap];
-        let mut at = vec![0.0; dp * cap];
-        let mut w = vec![0.0; cap];
-        let mut chunk_lo = vec![0.0; d];
-        let mut chunk_hi = vec![0.0; d];
-        for c0 in (0..t_len).step_by(cap) {
-            let m = cap.min(t_len - c0);
-            let mp = m.next_multiple_of(AL);
-            for (j, x) in data[c0 * d..(c0 + m) * d].chunks_exact(d).enumerate() {
-                for (k, v) in x.iter().enumerate() {
-                    xt[k * mp + j] = *v;
-                }
+        assert!(frames.dim() == d && weights.len() == frames.len() * s);
+        assert!(stats.has_shape(self.kind, s, d));
+        match isa {
+            #[cfg(target_arch = "x86_64")]
+            Isa::Avx512 => {
+                assert!(Isa::available().contains(&Isa::Avx512));
+                // SAFETY: the CPU supports AVX-512F (asserted above).
+                unsafe { accumulate_avx512(data, d, s, weights, stats) }
             }
-            for k in 0..d {
-                let row = &xt[k * mp..k * mp + m];
-                chunk_lo[k] = row.iter().fold(f64::INFINITY, |a, b| a.min(*b));
-                chunk_hi[k] = row.iter().fold(f64::NEG_INFINITY, |a, b| a.max(*b));
+            #[cfg(target_arch = "x86_64")]
+            Isa::Avx2 => {
+                assert!(Isa::available().contains(&Isa::Avx2));
+                // SAFETY: the CPU supports AVX2 and FMA (asserted above).
+                unsafe { accumulate_avx2(data, d, s, weights, stats) }
             }
-            for i in 0..s {
-                let mut zeros = 0;
-                for (j, wj) in w[..m].iter_mut().enumerate() {
-                    *wj = weights[(c0 + j) * s + i];
-                    zeros += (*wj == 0.0) as usize;
-                }
-                if zeros == m {
-                    continue;
-                }
-                let lo = &mut stats.lo[i * d..(i + 1) * d];
-                let hi = &mut stats.hi[i * d..(i + 1) * d];
-                // The frames with non-zero weight, transposed: all of the chunk,
-                // or (when some weights are exactly zero) a compacted copy.
-                let (src, wv, mm) = if zeros == 0 {
-                    for k in 0..d {
-                        lo[k] = lo[k].min(chunk_lo[k]);
-                        hi[k] = hi[k].max(chunk_hi[k]);
-                    }
-                    (&xt[..d * mp], &mut w[..], m)
-                } else {
-                    let mm = m - zeros;
-                    let mmp = mm.next_multiple_of(AL);
-                    let mut jj = 0;
-                    for j in 0..m {
-                        if w[j] != 0.0 {
-                            w[jj] = w[j];
-                            for k in 0..d {
-                                xz[k * mmp + jj] = xt[k * mp + j];
-                            }
-                            jj += 1;
-                        }
-                    }
-                    for k in 0..d {
-                        let row = &xz[k * mmp..k * mmp + mm];
-                        lo[k] = row.iter().fold(lo[k], |a, b| a.min(*b));
-                        hi[k] = row.iter().fold(hi[k], |a, b| a.max(*b));
-                    }
-                    (&xz[..d * mmp], &mut w[..], mm)
-                };
-                let mp = mm.next_multiple_of(AL);
-                wv[mm..mp].fill(0.0);
-                stats.weight[i] += linalg::lane_sum::<AL>(&wv[..mp]);
-                let c = &stats.shift[i * d..(i + 1) * d];
-                let sum = &mut stats.sum[i * d..(i + 1) * d];
-                for k in 0..d {
-                    let drow = &mut dt[k * mp..(k + 1) * mp];
-                    let arow = &mut at[k * mp..(k + 1) * mp];
-                    // Padding frames (weight 0) enter as exact zeros.
-                    sum[k] += linalg::centre_weight(
-                        &src[k * mp..(k + 1) * mp],
-                        c[k],
-                        &wv[..mp],
-                        drow,
-                        arow,
-                    );
-                    drow[mm..].fill(0.0);
-                }
-                dt[d * mp..dp * mp].fill(0.0);
-                at[d * mp..dp * mp].fill(0.0);
-                let q = &mut stats.sum_sq[i * d * d..(i + 1) * d * d];
-                for r0 in (0..d).step_by(4) {
-                    for c0 in (0..=r0 + 3).step_by(3).take_while(|c| *c < d) {
-                        let tile = linalg::dot_tile(&at, &dt, mp, r0, c0);
-                        for (u, row) in tile.iter().enumerate() {
-                            let r = r0 + u;
-                            if r >= d {
-                                break;
-                            }
-                            for (v, val) in row.iter().enumerate() {
-                                let c = c0 + v;
-                                if c <= r {
-                                    q[r * d + c] += val;
-                                }
-                            }
-                        }
-                    }
-                }
-            }
+            _ => accumulate_states::<Portable, 4, 2, 2>(data, d, s, weights, stats),
         }
     }
 
-    /// Log-densities of complete frames (no NaN) into `out` (`T × S`): blocks
-    /// of [`LANES`] frames for full/tied covariances (bit-identical to the
-    /// frame-by-frame form, which finishes a last single frame).
+    /// Log-densities of complete frames (no NaN) into `out` (`T × S`).
     pub(super) fn log_density_complete(&self, frames: Frames<'_>, out: &mut [f64]) {
-        let s = self.n_states;
-        let blocked = match self.kind {
-            // Blocks of LANES frames at once (bit-identical to the frame-by-frame
-            // form below, which finishes a last single frame).
+        match self.kind {
             CovarianceType::Full | CovarianceType::Tied => {
-                #[cfg(target_arch = "x86_64")]
-                {
-                    if linalg::has_avx2_fma() {
-                        // SAFETY: the CPU supports AVX2 and FMA (checked above).
-                        unsafe { full_blocks_avx2_fma(self, frames.as_slice(), out) }
-                    } else {
-                        self.full_blocks(frames.as_slice(), out)
-                    }
-                }
-                #[cfg(not(target_arch = "x86_64"))]
-                {
-                    self.full_blocks(frames.as_slice(), out)
+                if !frames.is_empty() {
+                    self.full_log_density(frames.as_slice(), out)
                 }
             }
-            CovarianceType::Diagonal | CovarianceType::Spherical => 0,
-        };
-        let full = matches!(self.kind, CovarianceType::Full | CovarianceType::Tied);
-        for (x, row) in frames.iter().zip(out.chunks_exact_mut(s)).skip(blocked) {
-            if full {
-                // A single frame (e.g. the online filter): all states at once.
-                #[cfg(target_arch = "x86_64")]
-                {
-                    if linalg::has_avx2_fma() {
-                        // SAFETY: the CPU supports AVX2 and FMA (checked above).
-                        unsafe { full_one_frame_avx2_fma(self, x, row) };
-                        continue;
+            CovarianceType::Diagonal | CovarianceType::Spherical => {
+                let s = self.n_states;
+                for (x, row) in frames.iter().zip(out.chunks_exact_mut(s)) {
+                    for (i, o) in row.iter_mut().enumerate() {
+                        *o = self.log_density_raw(i, x);
                     }
                 }
-                self.full_one_frame(x, row);
-                continue;
-            }
-            for (i, o) in row.iter_mut().enumerate() {
-                *o = self.log_density_raw(i, x);
             }
         }
     }
 }
-
-/// Frames per chunk of the full-covariance accumulation (keeps its scratch in L2).
-pub(super) const ACC_CHUNK: usize = 128;
-
-/// Interleaved partial sums of the accumulation (a property of the
-/// algorithm, not of the SIMD width, so results are the same on every CPU).
-pub(super) const AL: usize = linalg::DOT_LANES;
 
 /// Calls `f(x − μ)`, using a stack buffer for `D ≤ 64`.
 #[inline]
@@ -302,50 +227,618 @@ pub(super) fn with_diff<T>(x: &[f64], mu: &[f64], f: impl FnOnce(&[f64]) -> T) -
     }
 }
 
-/// [`Gaussian::full_blocks`] compiled for AVX2 and FMA.
+// ---------------------------------------------------------------------------
+// Log-densities: blocks of frames in the lanes.
+
+/// Log-densities of all frames of `data` by blocks of up to
+/// `LD_VECTORS · W` frames (frames in the lanes), whitening `R` rows of the
+/// packed factor at a time.
+///
+/// A block is transposed once (`D × F`), centred on each state's mean and
+/// whitened by [`whiten_rows`]; the frames of a block do not interact, so a
+/// frame's value is the same in whichever block (and call) it falls.
+#[inline(always)]
+fn log_density_blocks<V: Lanes, const R: usize>(g: &Gaussian, data: &[f64], out: &mut [f64]) {
+    const { assert!(R >= 1 && R <= 4) };
+    let d = g.dim;
+    let t_len = data.len() / d;
+    let f_max = LD_VECTORS * V::W;
+    let mut xt = vec![0.0; d * f_max];
+    let mut xc = vec![0.0; d * f_max];
+    let mut t0 = 0;
+    while t0 < t_len {
+        let nf = (t_len - t0).min(f_max);
+        match nf.div_ceil(V::W) {
+            1 => log_density_block::<V, 1, R>(g, data, t0, nf, &mut xt, &mut xc, out),
+            2 => log_density_block::<V, 2, R>(g, data, t0, nf, &mut xt, &mut xc, out),
+            3 => log_density_block::<V, 3, R>(g, data, t0, nf, &mut xt, &mut xc, out),
+            _ => log_density_block::<V, LD_VECTORS, R>(g, data, t0, nf, &mut xt, &mut xc, out),
+        }
+        t0 += nf;
+    }
+}
+
+/// One block: frames `t0 .. t0 + nf` in `N` vectors of lanes (padding lanes
+/// repeat the last frame; their results are dropped).
+#[inline(always)]
+fn log_density_block<V: Lanes, const N: usize, const R: usize>(
+    g: &Gaussian,
+    data: &[f64],
+    t0: usize,
+    nf: usize,
+    xt: &mut [f64],
+    xc: &mut [f64],
+    out: &mut [f64],
+) {
+    let (s, d) = (g.n_states, g.dim);
+    let fs = N * V::W;
+    assert!(nf >= 1 && nf <= fs && (t0 + nf) * d <= data.len() && (t0 + nf) * s <= out.len());
+    assert!(xt.len() >= d * fs && xc.len() >= d * fs && fs <= 64);
+    let pl = packed_len(d);
+    assert!(g.means.len() == s * d && g.log_norm.len() == s);
+    assert!(
+        g.whiten.len()
+            >= if g.kind == CovarianceType::Full {
+                s * pl
+            } else {
+                pl
+            }
+    );
+    for l in 0..fs {
+        let frame = &data[(t0 + l.min(nf - 1)) * d..][..d];
+        for (k, v) in frame.iter().enumerate() {
+            xt[k * fs + l] = *v;
+        }
+    }
+    let mut res = [0.0; 64];
+    for i in 0..s {
+        let mu = &g.means[i * d..(i + 1) * d];
+        let w = match g.kind {
+            CovarianceType::Full => &g.whiten[i * pl..(i + 1) * pl],
+            _ => &g.whiten[..pl],
+        };
+        // SAFETY: `xt` and `xc` hold `d · fs` values (asserted above), row `k`
+        // at `k · fs`, `fs = N · W`; `w` holds the packed `d × d` triangle
+        // that `whiten_rows` reads; `res` holds `fs ≤ 64` values.
+        unsafe {
+            let (pt, pc) = (xt.as_ptr(), xc.as_mut_ptr());
+            for (k, m) in mu.iter().enumerate() {
+                let m = V::splat(*m);
+                for n in 0..N {
+                    let at = k * fs + n * V::W;
+                    V::sub(V::load(pt.add(at)), m).store(pc.add(at));
+                }
+            }
+            let mut acc = [V::zero(); N];
+            let mut r0 = 0;
+            while r0 < d {
+                let rows = (d - r0).min(R);
+                let (wp, xp) = (w.as_ptr(), xc.as_ptr());
+                match rows {
+                    1 => whiten_rows::<V, N, 1>(wp, r0, xp, fs, &mut acc),
+                    2 => whiten_rows::<V, N, 2>(wp, r0, xp, fs, &mut acc),
+                    3 => whiten_rows::<V, N, 3>(wp, r0, xp, fs, &mut acc),
+                    _ => whiten_rows::<V, N, R>(wp, r0, xp, fs, &mut acc),
+                }
+                r0 += rows;
+            }
+            let (ln, half) = (V::splat(g.log_norm[i]), V::splat(0.5));
+            for (n, a) in acc.iter().enumerate() {
+                V::sub(ln, V::mul(half, *a)).store(res.as_mut_ptr().add(n * V::W));
+            }
+        }
+        for (l, v) in res[..nf].iter().enumerate() {
+            out[(t0 + l) * s + i] = *v;
+        }
+    }
+}
+
+/// Rows `r0 .. r0 + RR` of `z = W y` for `N` vectors of frames, then
+/// `acc += z_r²` in increasing `r`: the columns `k < r0`, shared by the rows,
+/// share each load of `y_k`; the triangle `r0 ≤ k ≤ r` follows. Every `z_r`
+/// is summed in increasing `k` from `0`, as in [`linalg::packed_lower_sq_norm`].
+///
+/// # Safety
+/// `w` points to the packed triangle (at least `packed_len(r0 + RR)`
+/// values), `y` to `r0 + RR` rows of `N · W` values at stride `fs`.
+#[inline(always)]
+unsafe fn whiten_rows<V: Lanes, const N: usize, const RR: usize>(
+    w: *const f64,
+    r0: usize,
+    y: *const f64,
+    fs: usize,
+    acc: &mut [V; N],
+) {
+    let row: [*const f64; RR] = std::array::from_fn(|j| w.add((r0 + j) * (r0 + j + 1) / 2));
+    let mut z = [[V::zero(); N]; RR];
+    for k in 0..r0 {
+        let x: [V; N] = std::array::from_fn(|n| V::load(y.add(k * fs + n * V::W)));
+        for j in 0..RR {
+            let b = V::splat(*row[j].add(k));
+            for n in 0..N {
+                z[j][n] = V::fma(b, x[n], z[j][n]);
+            }
+        }
+    }
+    for m in 0..RR {
+        let k = r0 + m;
+        let x: [V; N] = std::array::from_fn(|n| V::load(y.add(k * fs + n * V::W)));
+        for j in m..RR {
+            let b = V::splat(*row[j].add(k));
+            for n in 0..N {
+                z[j][n] = V::fma(b, x[n], z[j][n]);
+            }
+        }
+    }
+    for zj in &z {
+        for n in 0..N {
+            acc[n] = V::fma(zj[n], zj[n], acc[n]);
+        }
+    }
+}
+
+/// [`log_density_blocks`] compiled for AVX-512 (rows four at a time).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx2,fma")]
+unsafe fn log_density_avx512(g: &Gaussian, data: &[f64], out: &mut [f64]) {
+    log_density_blocks::<Avx512, 4>(g, data, out)
+}
+
+/// [`log_density_blocks`] compiled for AVX2 and FMA (rows two at a time:
+/// sixteen registers).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-pub(super) unsafe fn full_blocks_avx2_fma(g: &Gaussian, data: &[f64], out: &mut [f64]) -> usize {
-    g.full_blocks(data, out)
+unsafe fn log_density_avx2(g: &Gaussian, data: &[f64], out: &mut [f64]) {
+    log_density_blocks::<Avx2, 2>(g, data, out)
 }
 
 /// [`Gaussian::full_one_frame`] compiled for AVX2 and FMA.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-pub(super) unsafe fn full_one_frame_avx2_fma(g: &Gaussian, x: &[f64], out: &mut [f64]) {
+unsafe fn full_one_frame_avx2_fma(g: &Gaussian, x: &[f64], out: &mut [f64]) {
     g.full_one_frame(x, out)
 }
 
-/// [`Gaussian::accumulate_full`] compiled for AVX2 and FMA.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-pub(super) unsafe fn accumulate_full_avx2_fma(
-    g: &Gaussian,
-    frames: Frames<'_>,
+// ---------------------------------------------------------------------------
+// Statistics: rank-1 updates of register tiles of `Q`.
+
+/// Frames whose weights are sorted into per-state lists at once.
+const SUPER_CHUNK: usize = 256;
+
+/// Frames gathered per pass of the tiles: the centred and the weighted
+/// copies (`2 · m · Dp` values) stay within 16 KiB of L1.
+fn chunk_frames(dp: usize) -> usize {
+    (1024 / dp).clamp(8, SUPER_CHUNK)
+}
+
+/// Per-state running values, padded to whole vectors (`S × dp` each).
+struct Running {
+    dp: usize,
+    shift: Vec<f64>,
+    sum: Vec<f64>,
+    lo: Vec<f64>,
+    hi: Vec<f64>,
+}
+
+/// The statistics of every state over the frames of `data` (`T × d`), with
+/// tiles of up to `R` rows × `NV` vectors of `Q` and groups of `G` vectors
+/// in the centring pass.
+///
+/// Frames go by super-chunks of [`SUPER_CHUNK`]: one pass over their
+/// weights (contiguous rows) lists, per state, the frames whose weight
+/// counts. Then, state by state, the listed frames go by chunks of
+/// [`chunk_frames`]: [`centre_weight`] forms the centred `e = x − c_i` and
+/// weighted `a = w·e` copies (frame-major, rows padded to whole vectors with
+/// zeros) and updates `n_i`, `s_i` and the range; [`rank1_tiles`] loads every
+/// tile of the lower triangle of `Q_i` into registers, updates it by the
+/// rank-1 terms `a_r e_cᵀ` of the chunk's frames in order, and stores it
+/// (entries above the diagonal are computed in the diagonal tiles but never
+/// stored).
+#[inline(always)]
+fn accumulate_states<V: Lanes, const R: usize, const NV: usize, const G: usize>(
+    data: &[f64],
+    d: usize,
+    s: usize,
     weights: &[f64],
     stats: &mut GaussianStats,
 ) {
-    // Posteriors far below 1e-300 (which forward-backward produces on
-    // well-separated data) would make the weighted products subnormal, and
-    // every subnormal operand costs a ~100-cycle microcode assist. Flushing
-    // them to zero changes only terms below 2.2e-308.
-    let _ftz = linalg::FlushSubnormals::new();
-    g.accumulate_full(frames, weights, stats)
+    const { assert!(R >= 1 && R <= 8 && NV >= 1 && NV <= 3 && G >= 1 && G <= 4) };
+    let t_len = data.len() / d;
+    assert!(data.len() == t_len * d && weights.len() == t_len * s);
+    assert!(stats.sum_sq.len() == s * d * d && stats.sum.len() == s * d);
+    assert!(stats.lo.len() == s * d && stats.hi.len() == s * d && stats.shift.len() == s * d);
+    assert!(stats.weight.len() == s);
+    let nvec = d.div_ceil(V::W);
+    let dp = nvec * V::W;
+    let m_max = chunk_frames(dp);
+    let mut e_buf = vec![0.0; m_max * dp];
+    let mut a_buf = vec![0.0; m_max * dp];
+    let pad = |src: &[f64], fill: f64| -> Vec<f64> {
+        let mut v = vec![fill; s * dp];
+        for i in 0..s {
+            v[i * dp..i * dp + d].copy_from_slice(&src[i * d..(i + 1) * d]);
+        }
+        v
+    };
+    let mut run = Running {
+        dp,
+        shift: pad(&stats.shift, 0.0),
+        sum: pad(&stats.sum, 0.0),
+        lo: pad(&stats.lo, 0.0),
+        hi: pad(&stats.hi, 0.0),
+    };
+    // Per state, the frames of the super-chunk whose weights count
+    // (offsets from its start) and those weights.
+    let mut listed = vec![0u32; s * SUPER_CHUNK];
+    let mut listed_w = vec![0.0; s * SUPER_CHUNK];
+    let mut len = vec![0usize; s];
+    let mut t0 = 0;
+    while t0 < t_len {
+        let nt = (t_len - t0).min(SUPER_CHUNK);
+        len.fill(0);
+        for (j, row) in weights[t0 * s..(t0 + nt) * s].chunks_exact(s).enumerate() {
+            for (i, &w) in row.iter().enumerate() {
+                // Branch-free: the entry is overwritten unless it counts.
+                let at = i * SUPER_CHUNK + len[i];
+                listed[at] = j as u32;
+                listed_w[at] = w;
+                len[i] += counts(w) as usize;
+            }
+        }
+        let block = &data[t0 * d..(t0 + nt) * d];
+        let mut range: Option<(Vec<f64>, Vec<f64>)> = None;
+        for i in 0..s {
+            let n_i = len[i];
+            if n_i == 0 {
+                continue;
+            }
+            let dense = n_i == nt;
+            let offsets = &listed[i * SUPER_CHUNK..i * SUPER_CHUNK + n_i];
+            let ws = &listed_w[i * SUPER_CHUNK..i * SUPER_CHUNK + n_i];
+            let q = &mut stats.sum_sq[i * d * d..(i + 1) * d * d];
+            let mut n = stats.weight[i];
+            let mut j0 = 0;
+            while j0 < n_i {
+                let m = (n_i - j0).min(m_max);
+                let chunk = Chunk {
+                    data: block,
+                    d,
+                    dp,
+                    offsets: &offsets[j0..j0 + m],
+                    w: &ws[j0..j0 + m],
+                };
+                // SAFETY: `e_buf`/`a_buf` hold `m_max · dp ≥ m · dp` values,
+                // every offset is a frame of `block`, the running vectors of
+                // state `i` hold `dp` values each, and `q` is `d × d`.
+                unsafe {
+                    n = centre_weight_groups::<V, G>(
+                        &chunk, &mut run, i, !dense, n, &mut e_buf, &mut a_buf,
+                    );
+                    rank1_tiles::<V, R, NV>(q, d, dp, m, &e_buf, &a_buf);
+                }
+                j0 += m;
+            }
+            stats.weight[i] = n;
+            if dense {
+                // Every frame counted: the range of the super-chunk.
+                let (lo, hi) = range.get_or_insert_with(|| frame_range(block, d));
+                let at = i * dp;
+                for k in 0..d {
+                    let (l, h) = (&mut run.lo[at + k], &mut run.hi[at + k]);
+                    *l = if lo[k] < *l { lo[k] } else { *l };
+                    *h = if hi[k] > *h { hi[k] } else { *h };
+                }
+            }
+        }
+        t0 += nt;
+    }
+    for i in 0..s {
+        let at = i * dp;
+        stats.sum[i * d..(i + 1) * d].copy_from_slice(&run.sum[at..at + d]);
+        stats.lo[i * d..(i + 1) * d].copy_from_slice(&run.lo[at..at + d]);
+        stats.hi[i * d..(i + 1) * d].copy_from_slice(&run.hi[at..at + d]);
+    }
+}
+
+/// Smallest and largest value of every dimension over all frames.
+fn frame_range(data: &[f64], d: usize) -> (Vec<f64>, Vec<f64>) {
+    let mut lo = vec![f64::INFINITY; d];
+    let mut hi = vec![f64::NEG_INFINITY; d];
+    for x in data.chunks_exact(d) {
+        for k in 0..d {
+            lo[k] = if x[k] < lo[k] { x[k] } else { lo[k] };
+            hi[k] = if x[k] > hi[k] { x[k] } else { hi[k] };
+        }
+    }
+    (lo, hi)
+}
+
+/// The frames of one pass of the tiles: frame `offsets[j]` of `data`
+/// (`T × d`) with weight `w[j]`.
+struct Chunk<'a> {
+    data: &'a [f64],
+    d: usize,
+    dp: usize,
+    offsets: &'a [u32],
+    w: &'a [f64],
+}
+
+/// [`centre_weight`] over the vectors of a row, `G` at a time (so that the
+/// running sums and ranges stay in registers over the chunk); returns
+/// `n + Σ_j w_j` (summed in order).
+///
+/// # Safety
+/// As [`centre_weight`].
+#[inline(always)]
+unsafe fn centre_weight_groups<V: Lanes, const G: usize>(
+    chunk: &Chunk<'_>,
+    run: &mut Running,
+    i: usize,
+    range: bool,
+    n: f64,
+    e_buf: &mut [f64],
+    a_buf: &mut [f64],
+) -> f64 {
+    let nvec = chunk.dp / V::W;
+    let mut n = n;
+    let mut v0 = 0;
+    while v0 < nvec {
+        let g = (nvec - v0).min(G);
+        let first = v0 == 0;
+        macro_rules! go {
+            ($g:literal) => {
+                match (range, first) {
+                    (true, true) => {
+                        centre_weight::<V, $g, true, true>(chunk, run, i, v0, &mut n, e_buf, a_buf)
+                    }
+                    (true, false) => {
+                        centre_weight::<V, $g, true, false>(chunk, run, i, v0, &mut n, e_buf, a_buf)
+                    }
+                    (false, true) => {
+                        centre_weight::<V, $g, false, true>(chunk, run, i, v0, &mut n, e_buf, a_buf)
+                    }
+                    (false, false) => centre_weight::<V, $g, false, false>(
+                        chunk, run, i, v0, &mut n, e_buf, a_buf,
+                    ),
+                }
+            };
+        }
+        match g {
+            1 => go!(1),
+            2 => go!(2),
+            3 => go!(3),
+            _ => go!(4),
+        }
+        v0 += g;
+    }
+    n
+}
+
+/// Vectors `v0 .. v0 + GN` of `e_j = x_j − c` and `a_j = w_j e_j` for the
+/// frames of the chunk, into the rows of `e_buf`/`a_buf` (stride `dp`;
+/// padding lanes zero, since `x` and `c` are read as zero there), with
+/// `s ← s + a_j` in order and (with `RANGE`) the range of the frames; with
+/// `WEIGHT`, also `n ← n + w_j` in order.
+///
+/// # Safety
+/// The running vectors of state `i` hold `dp` values; `e_buf`, `a_buf` hold
+/// `offsets.len() · dp`; every offset is a frame of `data`; `v0 + GN` vectors
+/// fit in `dp`.
+#[inline(always)]
+unsafe fn centre_weight<V: Lanes, const GN: usize, const RANGE: bool, const WEIGHT: bool>(
+    chunk: &Chunk<'_>,
+    run: &mut Running,
+    i: usize,
+    v0: usize,
+    n: &mut f64,
+    e_buf: &mut [f64],
+    a_buf: &mut [f64],
+) {
+    let (d, dp) = (chunk.d, chunk.dp);
+    let at = i * run.dp + v0 * V::W;
+    let x = chunk.data.as_ptr().add(v0 * V::W);
+    let (ep, ap) = (
+        e_buf.as_mut_ptr().add(v0 * V::W),
+        a_buf.as_mut_ptr().add(v0 * V::W),
+    );
+    // Lanes of the frame in the last vector of the group.
+    let last = (d - (v0 + GN - 1) * V::W).min(V::W);
+    let c: [V; GN] = std::array::from_fn(|g| V::load(run.shift.as_ptr().add(at + g * V::W)));
+    let mut sv: [V; GN] = std::array::from_fn(|g| V::load(run.sum.as_ptr().add(at + g * V::W)));
+    let mut lv: [V; GN] = std::array::from_fn(|g| V::load(run.lo.as_ptr().add(at + g * V::W)));
+    let mut hv: [V; GN] = std::array::from_fn(|g| V::load(run.hi.as_ptr().add(at + g * V::W)));
+    let mut nn = *n;
+    for (j, (&t, &w)) in chunk.offsets.iter().zip(chunk.w).enumerate() {
+        let p = x.add(t as usize * d);
+        let wv = V::splat(w);
+        for g in 0..GN {
+            let xv = if g + 1 < GN || last == V::W {
+                V::load(p.add(g * V::W))
+            } else {
+                V::load_partial(p.add(g * V::W), last)
+            };
+            let e = V::sub(xv, c[g]);
+            let a = V::mul(wv, e);
+            e.store(ep.add(j * dp + g * V::W));
+            a.store(ap.add(j * dp + g * V::W));
+            sv[g] = V::add(sv[g], a);
+            if RANGE {
+                lv[g] = V::min(xv, lv[g]);
+                hv[g] = V::max(xv, hv[g]);
+            }
+        }
+        if WEIGHT {
+            nn += w;
+        }
+    }
+    *n = nn;
+    for g in 0..GN {
+        sv[g].store(run.sum.as_mut_ptr().add(at + g * V::W));
+        if RANGE {
+            lv[g].store(run.lo.as_mut_ptr().add(at + g * V::W));
+            hv[g].store(run.hi.as_mut_ptr().add(at + g * V::W));
+        }
+    }
+}
+
+/// `Q[r][c] ← fma(a_j[r], e_j[c], Q[r][c])` for `c ≤ r`, for the `m` frames
+/// of the chunk in order, by tiles of `R` rows × up to `NV` vectors (a tile
+/// keeps at least eight independent accumulators where the triangle allows,
+/// enough to cover the latency of the fused multiply-adds).
+///
+/// # Safety
+/// `q` is `d × d`; `e_buf`, `a_buf` hold `m` rows of `dp` values.
+#[inline(always)]
+unsafe fn rank1_tiles<V: Lanes, const R: usize, const NV: usize>(
+    q: &mut [f64],
+    d: usize,
+    dp: usize,
+    m: usize,
+    e_buf: &[f64],
+    a_buf: &[f64],
+) {
+    let mut r0 = 0;
+    while r0 < d {
+        let rows = (d - r0).min(R);
+        let ncv = (r0 + rows).div_ceil(V::W);
+        let mut v0 = 0;
+        while v0 < ncv {
+            let nc = (ncv - v0).min(NV);
+            let t = Tile {
+                q: q.as_mut_ptr(),
+                d,
+                dp,
+                m,
+                r0,
+                v0,
+                e: e_buf.as_ptr(),
+                a: a_buf.as_ptr(),
+            };
+            macro_rules! rows {
+                ($rr:literal) => {
+                    match nc {
+                        1 => tile::<V, $rr, 1>(&t),
+                        2 => tile::<V, $rr, 2>(&t),
+                        _ => tile::<V, $rr, NV>(&t),
+                    }
+                };
+            }
+            match rows {
+                1 => rows!(1),
+                2 => rows!(2),
+                3 => rows!(3),
+                4 => rows!(4),
+                5 => rows!(5),
+                6 => rows!(6),
+                7 => rows!(7),
+                _ => rows!(8),
+            }
+            v0 += nc;
+        }
+        r0 += rows;
+    }
+}
+
+/// One tile: rows `r0 .. r0 + RR` of `Q` (row-major `d × d`), columns
+/// `v0·W .. (v0 + NC)·W`, over the `m` frames of the chunk.
+struct Tile {
+    q: *mut f64,
+    d: usize,
+    dp: usize,
+    m: usize,
+    r0: usize,
+    v0: usize,
+    e: *const f64,
+    a: *const f64,
+}
+
+/// # Safety
+/// See [`rank1_tiles`]; rows `r0 .. r0 + RR ≤ d`, vectors `v0 .. v0 + NC`
+/// within the padded row `dp`.
+#[inline(always)]
+unsafe fn tile<V: Lanes, const RR: usize, const NC: usize>(t: &Tile) {
+    // Entries of row `r` stored: columns `c ≤ r` (so `c < d`).
+    let valid = |u: usize, v: usize| -> usize {
+        let (r, c0) = (t.r0 + u, (t.v0 + v) * V::W);
+        (r + 1).saturating_sub(c0).min(V::W)
+    };
+    // Masked loads and stores throughout (no branches): the prologue and
+    // epilogue unroll, and the accumulators stay in registers.
+    let mut acc = [[V::zero(); NC]; RR];
+    for (u, row) in acc.iter_mut().enumerate() {
+        for (v, a) in row.iter_mut().enumerate() {
+            let p = t.q.add((t.r0 + u) * t.d + (t.v0 + v) * V::W);
+            *a = V::load_partial(p, valid(u, v));
+        }
+    }
+    let (mut e, mut a) = (t.e.add(t.v0 * V::W), t.a.add(t.r0));
+    for _ in 0..t.m {
+        let ev: [V; NC] = std::array::from_fn(|v| V::load(e.add(v * V::W)));
+        for (u, row) in acc.iter_mut().enumerate() {
+            let b = V::splat(*a.add(u));
+            for v in 0..NC {
+                row[v] = V::fma(b, ev[v], row[v]);
+            }
+        }
+        e = e.add(t.dp);
+        a = a.add(t.dp);
+    }
+    for (u, row) in acc.iter().enumerate() {
+        for (v, a) in row.iter().enumerate() {
+            let p = t.q.add((t.r0 + u) * t.d + (t.v0 + v) * V::W);
+            a.store_partial(p, valid(u, v));
+        }
+    }
+}
+
+/// [`accumulate_states`] compiled for AVX-512: tiles of 8 rows × 2 vectors
+/// (16 accumulators; with 24, LLVM keeps the tile in memory), centring 4
+/// vectors at a time.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx2,fma")]
+unsafe fn accumulate_avx512(
+    data: &[f64],
+    d: usize,
+    s: usize,
+    weights: &[f64],
+    stats: &mut GaussianStats,
+) {
+    accumulate_states::<Avx512, 8, 2, 4>(data, d, s, weights, stats)
+}
+
+/// [`accumulate_states`] compiled for AVX2 and FMA: tiles of 4 rows × 2
+/// vectors (8 accumulators: 16 registers leave no room for 12 without
+/// spilling), centring 2 vectors at a time.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn accumulate_avx2(
+    data: &[f64],
+    d: usize,
+    s: usize,
+    weights: &[f64],
+    stats: &mut GaussianStats,
+) {
+    accumulate_states::<Avx2, 4, 2, 2>(data, d, s, weights, stats)
 }
 
 #[cfg(test)]
-mod blocked_paths {
-    //! The batched full-covariance kernels against the one-frame form and
-    //! against their own portable (non-AVX) build.
+mod tests {
+    //! Every build of the kernels against the definitions of the module
+    //! documentation (bit for bit), against each other, against any split of
+    //! the frames, and against the textbook formulas.
     use super::*;
     use crate::Emission;
     use nalgebra::DMatrix;
+    use proptest::prelude::*;
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
     use std::f64::consts::PI;
 
     fn random_model(kind: CovarianceType, s: usize, d: usize, rng: &mut ChaCha8Rng) -> Gaussian {
-        let means: Vec<f64> = (0..s * d).map(|_| rng.random_range(-2.0..2.0)).collect();
+        let offset = rng.random_range(-50.0..50.0);
+        let means: Vec<f64> = (0..s * d)
+            .map(|_| offset + rng.random_range(-2.0..2.0))
+            .collect();
         let n_cov = if kind == CovarianceType::Tied { 1 } else { s };
         let covs: Vec<f64> = (0..n_cov)
             .flat_map(|_| {
@@ -360,53 +853,178 @@ mod blocked_paths {
         Gaussian::new(kind, d, means, covs).unwrap()
     }
 
+    fn random_frames(g: &Gaussian, t: usize, rng: &mut ChaCha8Rng) -> Vec<f64> {
+        let d = g.dim();
+        let centre = g.mean(0).to_vec();
+        (0..t * d)
+            .map(|k| centre[k % d] + rng.random_range(-4.0..4.0))
+            .collect()
+    }
+
+    /// Weights with exact zeros, negligible values (subnormal ones too),
+    /// values just at the threshold and ordinary ones.
+    fn random_weights(n: usize, zero_share: f64, rng: &mut ChaCha8Rng) -> Vec<f64> {
+        (0..n)
+            .map(|_| {
+                let u: f64 = rng.random_range(0.0..1.0);
+                if u < zero_share {
+                    match rng.random_range(0..4) {
+                        0 => 0.0,
+                        1 => 1e-310,
+                        2 => NEGLIGIBLE_WEIGHT * 0.5,
+                        _ => 1e-200,
+                    }
+                } else if u < zero_share + 0.02 {
+                    NEGLIGIBLE_WEIGHT
+                } else {
+                    rng.random_range(0.0..1.0)
+                }
+            })
+            .collect()
+    }
+
     fn bits(v: &[f64]) -> Vec<u64> {
         v.iter().map(|x| x.to_bits()).collect()
     }
 
+    fn stats_bits(st: &GaussianStats) -> Vec<u64> {
+        [&st.shift, &st.weight, &st.sum, &st.sum_sq, &st.lo, &st.hi]
+            .iter()
+            .flat_map(|v| bits(v))
+            .collect()
+    }
+
+    /// The statistics exactly as the module documentation defines them,
+    /// one frame and one entry at a time (scalar, no blocks, no tiles).
+    fn defined_stats(g: &Gaussian, x: &[f64], w: &[f64], st: &mut GaussianStats) {
+        let (s, d) = (g.n_states(), g.dim());
+        for (t, f) in x.chunks_exact(d).enumerate() {
+            for i in 0..s {
+                let wt = w[t * s + i];
+                if wt.abs() < NEGLIGIBLE_WEIGHT {
+                    continue;
+                }
+                st.weight[i] += wt;
+                let c = st.shift[i * d..(i + 1) * d].to_vec();
+                let e: Vec<f64> = (0..d).map(|k| f[k] - c[k]).collect();
+                let a: Vec<f64> = e.iter().map(|v| wt * v).collect();
+                for k in 0..d {
+                    let j = i * d + k;
+                    st.sum[j] += a[k];
+                    if f[k] < st.lo[j] {
+                        st.lo[j] = f[k];
+                    }
+                    if f[k] > st.hi[j] {
+                        st.hi[j] = f[k];
+                    }
+                }
+                let q = &mut st.sum_sq[i * d * d..(i + 1) * d * d];
+                for r in 0..d {
+                    for cc in 0..=r {
+                        q[r * d + cc] = a[r].mul_add(e[cc], q[r * d + cc]);
+                    }
+                }
+            }
+        }
+    }
+
+    /// Log-densities (every build, every split) and statistics (every
+    /// build, every split) of one random case.
+    fn check_case(kind: CovarianceType, s: usize, d: usize, t: usize, zero_share: f64, seed: u64) {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let g = random_model(kind, s, d, &mut rng);
+        let x = random_frames(&g, t, &mut rng);
+        let frames = Frames::new(&x, d).unwrap();
+        let what = format!("{kind:?} S={s} D={d} T={t} zeros {zero_share}");
+
+        // Log-densities: the one-frame reference, bit for bit.
+        let want: Vec<f64> = x
+            .chunks_exact(d)
+            .flat_map(|f| {
+                (0..s)
+                    .map(|i| g.log_density_one(i, f).unwrap())
+                    .collect::<Vec<_>>()
+            })
+            .collect();
+        for isa in Isa::available() {
+            let mut got = vec![f64::NAN; t * s];
+            g.full_log_density_with(isa, &x, &mut got);
+            assert_eq!(bits(&got), bits(&want), "{what}: log-density, {isa:?}");
+        }
+        let all = g.log_density(frames).unwrap();
+        assert_eq!(bits(&all), bits(&want), "{what}: log_density");
+        let cut = rng.random_range(0..=t);
+        let mut split = g.log_density(frames.slice(0..cut)).unwrap();
+        split.extend(g.log_density(frames.slice(cut..t)).unwrap());
+        assert_eq!(bits(&split), bits(&want), "{what}: split at {cut}");
+
+        // Statistics: the scalar definition, bit for bit, in two calls.
+        let w = random_weights(t * s, zero_share, &mut rng);
+        let mut defined = g.new_stats();
+        defined_stats(&g, &x, &w, &mut defined);
+        for isa in Isa::available() {
+            let mut st = g.new_stats();
+            g.accumulate_full_with(isa, frames, &w, &mut st);
+            assert_eq!(
+                stats_bits(&st),
+                stats_bits(&defined),
+                "{what}: stats, {isa:?}"
+            );
+            let mut two = g.new_stats();
+            g.accumulate_full_with(isa, frames.slice(0..cut), &w[..cut * s], &mut two);
+            g.accumulate_full_with(isa, frames.slice(cut..t), &w[cut * s..], &mut two);
+            assert_eq!(
+                stats_bits(&two),
+                stats_bits(&defined),
+                "{what}: stats split at {cut}, {isa:?}"
+            );
+        }
+        let mut st = g.new_stats();
+        g.accumulate(frames, &w, &mut st).unwrap();
+        assert_eq!(stats_bits(&st), stats_bits(&defined), "{what}: accumulate");
+    }
+
     #[test]
-    fn log_density_blocks_equal_frame_by_frame_and_any_split() {
+    fn every_build_follows_the_definitions_bit_for_bit() {
+        let mut seed = 0;
+        for kind in [CovarianceType::Full, CovarianceType::Tied] {
+            for d in [1, 2, 3, 4, 5, 7, 8, 9, 12, 13, 17, 36, 41] {
+                for (s, t) in [(1, 1), (3, 2), (4, 33), (9, 70), (16, 9)] {
+                    for zero_share in [0.0, 0.5] {
+                        seed += 1;
+                        check_case(kind, s, d, t, zero_share, seed);
+                    }
+                }
+            }
+        }
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(48))]
+        #[test]
+        fn every_build_follows_the_definitions_on_random_shapes(
+            tied in any::<bool>(),
+            s in 1usize..18,
+            d in 1usize..40,
+            t in 1usize..150,
+            zero_share in 0.0f64..0.95,
+            seed in any::<u64>(),
+        ) {
+            let kind = if tied { CovarianceType::Tied } else { CovarianceType::Full };
+            check_case(kind, s, d, t, zero_share, seed);
+        }
+    }
+
+    #[test]
+    fn log_density_matches_the_textbook_value() {
         let mut rng = ChaCha8Rng::seed_from_u64(5);
         for kind in [CovarianceType::Full, CovarianceType::Tied] {
             for d in [1, 2, 3, 5, 12, 17, 36] {
                 let s = 3;
                 let g = random_model(kind, s, d, &mut rng);
                 let t = 53;
-                let x: Vec<f64> = (0..t * d).map(|_| rng.random_range(-4.0..4.0)).collect();
-                let frames = Frames::new(&x, d).unwrap();
-                let all = g.log_density(frames).unwrap();
-                let one: Vec<f64> = x
-                    .chunks_exact(d)
-                    .flat_map(|f| {
-                        (0..s)
-                            .map(|i| g.log_density_one(i, f).unwrap())
-                            .collect::<Vec<_>>()
-                    })
-                    .collect();
-                assert_eq!(
-                    bits(&all),
-                    bits(&one),
-                    "{kind:?} D={d}: blocks vs one frame"
-                );
-                let mut split = Vec::new();
-                for r in [0..1, 1..3, 3..20, 20..37, 37..53] {
-                    split.extend(g.log_density(frames.slice(r)).unwrap());
-                }
-                assert_eq!(bits(&all), bits(&split), "{kind:?} D={d}: split calls");
-                // The portable build of the same kernel.
-                let mut portable = vec![0.0; t * s];
-                let done = g.full_blocks(&x, &mut portable);
-                for (tt, f) in x.chunks_exact(d).enumerate().skip(done) {
-                    for i in 0..s {
-                        portable[tt * s + i] = g.log_density_raw(i, f);
-                    }
-                }
-                assert_eq!(
-                    bits(&all),
-                    bits(&portable),
-                    "{kind:?} D={d}: portable build"
-                );
-                // And the textbook value.
+                let x = random_frames(&g, t, &mut rng);
+                let all = g.log_density(Frames::new(&x, d).unwrap()).unwrap();
                 for (tt, f) in x.chunks_exact(d).enumerate() {
                     for i in 0..s {
                         let cov = g.covariance(i);
@@ -430,7 +1048,7 @@ mod blocked_paths {
     }
 
     #[test]
-    fn accumulate_blocks_match_formulas_and_portable_build() {
+    fn statistics_match_the_textbook_formulas() {
         let mut rng = ChaCha8Rng::seed_from_u64(6);
         for kind in [CovarianceType::Full, CovarianceType::Tied] {
             for d in [1, 2, 3, 5, 12, 17, 36] {
@@ -438,29 +1056,18 @@ mod blocked_paths {
                     let s = 3;
                     let g = random_model(kind, s, d, &mut rng);
                     let t = 301;
-                    let x: Vec<f64> = (0..t * d).map(|_| rng.random_range(-4.0..4.0)).collect();
-                    let w: Vec<f64> = (0..t * s)
-                        .map(|_| {
-                            if rng.random_range(0.0..1.0) < zero_share {
-                                0.0
-                            } else {
-                                rng.random_range(0.0..1.0)
-                            }
-                        })
-                        .collect();
-                    let frames = Frames::new(&x, d).unwrap();
+                    let x = random_frames(&g, t, &mut rng);
+                    let w = random_weights(t * s, zero_share, &mut rng);
                     let mut st = g.new_stats();
-                    g.accumulate(frames, &w, &mut st).unwrap();
-                    let mut portable = g.new_stats();
-                    g.accumulate_full(frames, &w, &mut portable);
-                    assert_eq!(st, portable, "{kind:?} D={d}: portable build");
+                    g.accumulate(Frames::new(&x, d).unwrap(), &w, &mut st)
+                        .unwrap();
                     for i in 0..s {
                         let c = &st.shift[i * d..(i + 1) * d];
                         let (mut n, mut sum, mut q) = (0.0, vec![0.0; d], vec![0.0; d * d]);
                         let (mut lo, mut hi) = (vec![f64::INFINITY; d], vec![f64::NEG_INFINITY; d]);
                         for (tt, f) in x.chunks_exact(d).enumerate() {
                             let wt = w[tt * s + i];
-                            if wt == 0.0 {
+                            if wt < NEGLIGIBLE_WEIGHT {
                                 continue;
                             }
                             n += wt;
@@ -473,17 +1080,20 @@ mod blocked_paths {
                                 }
                             }
                         }
-                        let close = |a: f64, b: f64| (a - b).abs() <= 1e-11 * (1.0 + b.abs());
-                        assert!(close(st.weight[i], n));
+                        let close =
+                            |a: f64, b: f64, scale: f64| (a - b).abs() <= 1e-11 * (1.0 + scale);
+                        assert!(close(st.weight[i], n, n));
                         assert_eq!(&st.lo[i * d..(i + 1) * d], &lo[..], "{kind:?} D={d} lo");
                         assert_eq!(&st.hi[i * d..(i + 1) * d], &hi[..], "{kind:?} D={d} hi");
+                        let qscale = q.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+                        let sscale = sum.iter().fold(n, |m, v| m.max(v.abs()));
                         for r in 0..d {
-                            assert!(close(st.sum[i * d + r], sum[r]));
+                            assert!(close(st.sum[i * d + r], sum[r], sscale));
                             for cc in 0..d {
                                 let got = st.sum_sq[i * d * d + r * d + cc];
                                 let want = if cc <= r { q[r * d + cc] } else { 0.0 };
                                 assert!(
-                                    close(got, want),
+                                    close(got, want, qscale),
                                     "{kind:?} D={d} Q[{r},{cc}] {got} vs {want}"
                                 );
                             }
@@ -491,6 +1101,59 @@ mod blocked_paths {
                     }
                 }
             }
+        }
+    }
+
+    #[test]
+    fn negligible_weights_count_as_zero_and_the_threshold_counts() {
+        let mut rng = ChaCha8Rng::seed_from_u64(9);
+        for kind in [
+            CovarianceType::Full,
+            CovarianceType::Tied,
+            CovarianceType::Diagonal,
+            CovarianceType::Spherical,
+        ] {
+            let (s, d, t) = (2, 5, 40);
+            let g = random_model(CovarianceType::Full, s, d, &mut rng);
+            let g = match kind {
+                CovarianceType::Full => g,
+                CovarianceType::Tied => {
+                    Gaussian::tied(d, g.means().to_vec(), g.covariances_raw()[..d * d].to_vec())
+                        .unwrap()
+                }
+                CovarianceType::Diagonal => {
+                    Gaussian::diagonal(d, g.means().to_vec(), vec![0.5; s * d]).unwrap()
+                }
+                CovarianceType::Spherical => {
+                    Gaussian::spherical(d, g.means().to_vec(), vec![0.5; s]).unwrap()
+                }
+            };
+            let x = random_frames(&g, t, &mut rng);
+            let frames = Frames::new(&x, d).unwrap();
+            let w: Vec<f64> = (0..t * s).map(|_| rng.random_range(0.1..1.0)).collect();
+            let mut zeroed = w.clone();
+            let mut tiny = w.clone();
+            for k in (0..t * s).step_by(3) {
+                zeroed[k] = 0.0;
+                tiny[k] = [1e-320, 1e-300, NEGLIGIBLE_WEIGHT / 2.0][k % 3];
+            }
+            let run = |w: &[f64]| {
+                let mut st = g.new_stats();
+                g.accumulate(frames, w, &mut st).unwrap();
+                stats_bits(&st)
+            };
+            assert_eq!(run(&tiny), run(&zeroed), "{kind:?}");
+            // A weight at the threshold counts (state 0 has no other weight).
+            let mut none = zeroed.clone();
+            for t in 0..t {
+                none[t * s] = 0.0;
+            }
+            let mut at = none.clone();
+            at[0] = NEGLIGIBLE_WEIGHT;
+            let mut st = g.new_stats();
+            g.accumulate(frames, &at, &mut st).unwrap();
+            assert_eq!(st.weights()[0], NEGLIGIBLE_WEIGHT, "{kind:?}");
+            assert_ne!(run(&at), run(&none), "{kind:?}");
         }
     }
 }

@@ -85,7 +85,7 @@ impl Gaussian {
                 Some(conditionals.get_or_try_insert(x, || Imputation::new(self, x))?)
             };
             for (i, &wi) in w.iter().enumerate() {
-                if wi == 0.0 {
+                if !super::kernels::counts(wi) {
                     continue;
                 }
                 let c = &stats.shift[i * d..(i + 1) * d];

@@ -15,8 +15,10 @@
 
 mod kernels;
 mod missing;
+mod simd;
 mod stats;
 
+pub use kernels::NEGLIGIBLE_WEIGHT;
 pub use stats::{weighted_mean_covariance, GaussianStats};
 
 use crate::capability::{check_split, ConcatStates, Conditional, ConditionalSplit};
@@ -163,7 +165,7 @@ impl Gaussian {
         if dim == 0 {
             return Err(invalid("dim", "must be at least 1".into()));
         }
-        if means.is_empty() || means.len() % dim != 0 {
+        if means.is_empty() || !means.len().is_multiple_of(dim) {
             return Err(invalid(
                 "means",
                 format!(

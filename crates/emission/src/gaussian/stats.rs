@@ -1,10 +1,9 @@
 //! The Gaussian's sufficient statistics (about per-state reference points,
 //! merged exactly) and its M-step with regularisation and jitter.
 
-use super::kernels::accumulate_full_avx2_fma;
+use super::kernels::counts;
 use super::Gaussian;
 use crate::error::{EmissionError, Result};
-use crate::linalg;
 use crate::regularisation::{
     jitter_variances, regularised_covariance, regularised_variance, CovarianceRegularisation,
     MStepEvent, MStepReport, Regularisation,
@@ -15,8 +14,9 @@ use serde::{Deserialize, Serialize};
 
 impl Gaussian {
     /// For a placeholder template, anchors the reference point of every state
-    /// that has no weight yet at its first weighted frame (dimension by
-    /// dimension at the first observed value, when values are missing).
+    /// that has no weight yet at its first frame whose weight counts (see
+    /// [`NEGLIGIBLE_WEIGHT`](super::NEGLIGIBLE_WEIGHT); dimension by dimension
+    /// at the first observed value, when values are missing).
     pub(super) fn anchor(&self, frames: Frames<'_>, weights: &[f64], stats: &mut GaussianStats) {
         if !stats.anchor_lazily {
             return;
@@ -26,7 +26,7 @@ impl Gaussian {
             if stats.weight[i] != 0.0 {
                 continue;
             }
-            let Some(t) = (0..frames.len()).find(|&t| weights[t * s + i] != 0.0) else {
+            let Some(t) = (0..frames.len()).find(|&t| counts(weights[t * s + i])) else {
                 continue;
             };
             let shift = &mut stats.shift[i * d..(i + 1) * d];
@@ -35,7 +35,7 @@ impl Gaussian {
                 for (k, c) in shift.iter_mut().enumerate() {
                     if c.is_nan() {
                         *c = (t..frames.len())
-                            .filter(|&u| weights[u * s + i] != 0.0)
+                            .filter(|&u| counts(weights[u * s + i]))
                             .map(|u| frames.frame(u)[k])
                             .find(|v| !v.is_nan())
                             .unwrap_or(0.0);
@@ -45,7 +45,8 @@ impl Gaussian {
         }
     }
 
-    /// [`Emission::accumulate`] for complete frames (no NaN).
+    /// [`Emission::accumulate`] for complete frames (no NaN); weights below
+    /// [`NEGLIGIBLE_WEIGHT`](super::NEGLIGIBLE_WEIGHT) count as zero.
     pub(super) fn accumulate_complete(
         &self,
         frames: Frames<'_>,
@@ -54,14 +55,6 @@ impl Gaussian {
     ) {
         let (s, d) = (self.n_states, self.dim);
         if matches!(self.kind, CovarianceType::Full | CovarianceType::Tied) {
-            #[cfg(target_arch = "x86_64")]
-            {
-                if linalg::has_avx2_fma() {
-                    // SAFETY: the CPU supports AVX2 and FMA (checked above).
-                    unsafe { accumulate_full_avx2_fma(self, frames, weights, stats) };
-                    return;
-                }
-            }
             self.accumulate_full(frames, weights, stats);
             return;
         }
@@ -75,7 +68,7 @@ impl Gaussian {
                 let q = &mut stats.sum_sq[i * d..(i + 1) * d];
                 for (t, x) in frames.iter().enumerate() {
                     let w = weights[t * s + i];
-                    if w == 0.0 {
+                    if !counts(w) {
                         continue;
                     }
                     n += w;

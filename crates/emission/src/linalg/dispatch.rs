@@ -5,7 +5,9 @@
 //! scalar form: `+`, `−`, `×`, `÷` and [`f64::mul_add`] are correctly rounded
 //! in IEEE 754 on every target, Rust never contracts `a·b + c` into a fused
 //! multiply-add on its own, and the summation orders are fixed by the code,
-//! not by the vector width. [`dispatch`] compiles such code once more for
+//! not by the vector width (the Gaussian's full/tied kernels follow the same
+//! rule over explicit vector types, `gaussian/simd.rs`, and take their level
+//! from [`simd_level`]). [`dispatch`] compiles such code once more for
 //! AVX2 + FMA and once for AVX-512 and runs the best build the CPU has, so
 //! the results are the same bits on every CPU and at every [`SimdLevel`]
 //! (tested by forcing each level with [`with_simd_level`]).
@@ -68,12 +70,25 @@ fn detect() -> SimdLevel {
     SimdLevel::Portable
 }
 
-/// The level the CPU supports (detected once), lowered by [`with_simd_level`].
+/// The level of the CPU, capped by the environment variable `PHASEKIT_SIMD`
+/// (`portable`, `avx2` or `avx512`; read once), so that one machine can check
+/// that every build gives the same numbers (an unknown value caps nothing).
+fn detect_capped() -> SimdLevel {
+    let cap = match std::env::var("PHASEKIT_SIMD").as_deref() {
+        Ok("portable") => SimdLevel::Portable,
+        Ok("avx2") => SimdLevel::Avx2Fma,
+        _ => SimdLevel::Avx512,
+    };
+    detect().min(cap)
+}
+
+/// The level the CPU supports (detected once, capped by `PHASEKIT_SIMD`),
+/// lowered by [`with_simd_level`].
 #[inline]
 pub fn simd_level() -> SimdLevel {
     let mut d = DETECTED.load(Ordering::Relaxed);
     if d == 0 {
-        d = detect().code();
+        d = detect_capped().code();
         DETECTED.store(d, Ordering::Relaxed);
     }
     let cap = CAP.load(Ordering::Relaxed);
@@ -97,13 +112,6 @@ pub fn with_simd_level<R>(level: SimdLevel, f: impl FnOnce() -> R) -> R {
     }
     let _restore = Restore(CAP.swap(level.code(), Ordering::Relaxed));
     f()
-}
-
-/// True when the kernels may use AVX2 and FMA ([`simd_level`] is at least
-/// [`SimdLevel::Avx2Fma`]).
-#[inline]
-pub fn has_avx2_fma() -> bool {
-    simd_level() >= SimdLevel::Avx2Fma
 }
 
 /// Runs `f` compiled for the best instruction set of the CPU
@@ -141,47 +149,5 @@ mod x86 {
     #[target_feature(enable = "avx512f,avx512vl,avx512dq,avx2,fma")]
     pub fn avx512<R>(f: impl FnOnce() -> R) -> R {
         f()
-    }
-}
-
-/// While alive, the current thread flushes subnormal results to zero and
-/// treats subnormal operands as zero (MXCSR FTZ and DAZ); the previous mode
-/// is restored on drop (also when unwinding). Only values below
-/// `f64::MIN_POSITIVE` (2.2e-308) are affected.
-#[cfg(target_arch = "x86_64")]
-pub struct FlushSubnormals(u32);
-
-#[cfg(target_arch = "x86_64")]
-impl FlushSubnormals {
-    /// Sets FTZ and DAZ, remembering the previous MXCSR.
-    #[inline]
-    pub fn new() -> Self {
-        let mut old: u32 = 0;
-        // SAFETY: stmxcsr stores the 32-bit MXCSR into `old`; ldmxcsr loads a
-        // valid MXCSR (the current one with FTZ (bit 15) and DAZ (bit 6) set).
-        unsafe {
-            std::arch::asm!("stmxcsr [{}]", in(reg) &mut old, options(nostack, preserves_flags));
-            let new = old | 0x8040;
-            std::arch::asm!("ldmxcsr [{}]", in(reg) &new, options(nostack, preserves_flags));
-        }
-        FlushSubnormals(old)
-    }
-}
-
-#[cfg(target_arch = "x86_64")]
-impl Default for FlushSubnormals {
-    fn default() -> Self {
-        Self::new()
-    }
-}
-
-#[cfg(target_arch = "x86_64")]
-impl Drop for FlushSubnormals {
-    #[inline]
-    fn drop(&mut self) {
-        // SAFETY: restores the MXCSR saved by `new`.
-        unsafe {
-            std::arch::asm!("ldmxcsr [{}]", in(reg) &self.0, options(nostack, preserves_flags));
-        }
     }
 }

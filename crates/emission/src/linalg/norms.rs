@@ -1,9 +1,9 @@
 //! Squared norms `‖W v‖²` of packed lower-triangular `W`: the Mahalanobis
 //! distances of the Gaussian log-densities (`W = L⁻¹`, `Σ = L Lᵀ`), for one
-//! vector, for [`LANES`] frames at once, or for one frame under
-//! [`STATE_LANES`] states at once.
+//! vector or for one frame under [`STATE_LANES`] states at once (blocks of
+//! frames are the Gaussian's own kernels, `gaussian/kernels.rs`).
 //!
-//! Every form does, lane by lane, the arithmetic of [`sq_norms`]: rows of `W`
+//! Both do, lane by lane, the arithmetic of `sq_norms`: rows of `W`
 //! two at a time, `z_r = Σ_{k ≤ r} w_rk v_k` by fused multiply-adds in
 //! increasing `k`, then `acc += z_r²` in increasing `r`. So the one-frame,
 //! the batched and the per-state evaluations agree to the last bit, whatever
@@ -12,16 +12,13 @@
 use super::dispatch::dispatch;
 use super::packed::packed_len;
 
-/// Frames evaluated together by the batched kernels: the SIMD lanes of
-/// [`packed_lower_sq_norms`] are consecutive frames.
-pub const LANES: usize = 16;
-
 /// `Σ_r (W_r · v)²` for a packed lower-triangular `W`: the squared norm of `W v`.
 ///
 /// With `W = L⁻¹` for the Cholesky factor `L` of `Σ`, this is the Mahalanobis
 /// distance `vᵀ Σ⁻¹ v`. Computed with fused multiply-adds in a fixed order,
-/// exactly as one lane of [`packed_lower_sq_norms`], so that the one-frame and
-/// the batched evaluations agree to the last bit.
+/// exactly as one lane of [`sq_norms_lanes`] and as the Gaussian's batched
+/// kernels, so that the one-frame and the batched evaluations agree to the
+/// last bit.
 #[inline]
 pub fn packed_lower_sq_norm(packed: &[f64], v: &[f64]) -> f64 {
     let mut out = [0.0];
@@ -32,26 +29,11 @@ pub fn packed_lower_sq_norm(packed: &[f64], v: &[f64]) -> f64 {
     out[0]
 }
 
-/// `out[l] = ‖W v_l‖²` for `L` vectors at once: `xt` holds them transposed
-/// (`xt[k·L + l]` is entry `k` of vector `l`, `D × L`). Every lane does the
-/// arithmetic of [`packed_lower_sq_norm`], so results do not depend on `L`,
-/// on the SIMD width or on how frames are grouped.
-#[inline]
-pub fn packed_lower_sq_norms(packed: &[f64], d: usize, xt: &[f64], out: &mut [f64; LANES]) {
-    #[cfg(target_arch = "x86_64")]
-    if super::dispatch::has_avx2_fma() {
-        // SAFETY: the CPU has AVX2 and FMA (checked by `has_avx2_fma`).
-        unsafe { super::x86::sq_norms16_avx2_fma(packed, d, xt, out) };
-        return;
-    }
-    sq_norms::<LANES>(packed, d, xt, out)
-}
-
 /// Body of the squared-norm kernels (see the module documentation).
 /// `f64::mul_add` is correctly rounded on every target (hardware or libm), so
 /// all code paths give identical results.
 #[inline(always)]
-pub fn sq_norms<const L: usize>(packed: &[f64], d: usize, xt: &[f64], out: &mut [f64; L]) {
+fn sq_norms<const L: usize>(packed: &[f64], d: usize, xt: &[f64], out: &mut [f64; L]) {
     assert!(packed.len() >= packed_len(d) && xt.len() >= d * L);
     let xt = &xt[..d * L];
     let lane = |k: usize| -> &[f64; L] { xt[k * L..(k + 1) * L].try_into().unwrap() };

@@ -252,6 +252,8 @@ impl BackwardCore {
     }
 
     /// Every rule of the module documentation, state by state.
+    // `j` indexes several per-state arrays (densities, reachability, predictions) at once.
+    #[allow(clippy::needless_range_loop)]
     #[inline(always)]
     fn general_step(
         &mut self,

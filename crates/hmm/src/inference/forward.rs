@@ -293,6 +293,8 @@ impl ForwardCore {
     }
 
     /// Every rule of the module documentation, state by state.
+    // `j` indexes several per-state arrays (densities, reachability, predictions) at once.
+    #[allow(clippy::needless_range_loop)]
     #[inline(always)]
     fn general_step(&mut self, log_b_padded: &[Lanes], h_padded: &mut [Lanes]) -> f64 {
         let s = self.s;
