@@ -1,10 +1,20 @@
 #!/usr/bin/env python3
-"""Time hmmlearn 0.3.3 and scikit-learn 1.5.2 on the workloads that
-``bench_compare run DIR`` wrote (manifest.json + raw f64 files), read
-phasekit's timings from DIR/phasekit.json, check that the log-likelihoods
-agree and print a table of per-iteration times and ratios.
+"""Time hmmlearn, scikit-learn and dynamax (their current releases) on the
+workloads that ``bench_compare run DIR`` wrote (manifest.json + raw f64
+files), read phasekit's timings from DIR/phasekit.json, check that every
+tool starts from the same log-likelihood and print a table of per-iteration
+times and ratios.
 
-Run through ``benches/compare/run.sh`` (pinned virtualenv, one thread).
+Run through ``benches/compare/run.sh`` (its own virtualenv, one core).
+
+dynamax (JAX, float64, CPU): ``GaussianHMM`` initialised with the same
+parameters; per-iteration time = median CPU time of one call of the EM
+step of its ``fit_em`` (E-step vmapped over the sequences, log prior,
+M-step), jitted once, after a first call (compilation excluded). Its
+priors (Dirichlet 1.1, a weak NIW) are not phasekit's, so only the first
+log-likelihood (before any M-step) is compared; the arithmetic per
+iteration is the same. dynamax takes a (sequences, T, D) array: workloads
+with sequences of unequal lengths are not run.
 
 Conventions (identical on both sides):
 * hmmlearn GaussianHMM, ``init_params=""``, ``params="stmc"``, ``tol=-inf``,
@@ -29,6 +39,8 @@ import time
 import warnings
 import logging
 
+from functools import partial
+
 import numpy as np
 
 from hmmlearn import hmm
@@ -36,12 +48,25 @@ import hmmlearn
 import sklearn
 from sklearn.mixture import GaussianMixture
 
+try:
+    import jax
+    jax.config.update("jax_enable_x64", True)
+    import jax.numpy as jnp
+    from dynamax.hidden_markov_model import GaussianHMM as DynamaxGaussianHMM
+    import importlib.metadata
+    DYNAMAX = importlib.metadata.version("dynamax")
+except ImportError:  # dynamax not installed: its columns say so
+    DYNAMAX = None
+
 logging.getLogger("hmmlearn").setLevel(logging.ERROR)
 warnings.filterwarnings("ignore")
 
 TARGET_LOG = 30.0
-TARGET_SCALING = 15.0
+TARGET_SCALING = 15.0  # (issue 6; issue 18 sets none for scaling)
 TARGET_SKLEARN = 5.0
+TARGET_DYNAMAX = 10.0
+# Which peers to run (comma-separated; default all): e.g. PEERS=dynamax.
+PEERS = set(os.environ.get("PEERS", "hmmlearn,sklearn,dynamax").split(","))
 
 
 def load(dirname, w):
@@ -90,6 +115,8 @@ def rel(a, b):
 
 
 def run_hmm(dirname, w, pk, cap):
+    if "hmmlearn" not in PEERS:
+        return None
     x = load(dirname, w)
     lengths = np.array(w["lengths"])
     n_iter = w["n_iter"]
@@ -105,7 +132,8 @@ def run_hmm(dirname, w, pk, cap):
         hist = list(m.monitor_.history)
         diffs = [rel(a, b) for a, b in zip(pk["ll_history"], hist)]
         out[impl] = {"per_iter_s": secs / n_run, "n_iter_run": n_run,
-                     "max_rel_ll_diff": max(diffs), "final_ll": hist[-1]}
+                     "max_rel_ll_diff": max(diffs), "final_ll": hist[-1],
+                     "first_ll_rel_diff": diffs[0]}
         if w["kind"] == "small":
             m0 = hmm_model(w, impl, 1)
             m0.n_features = 1
@@ -116,6 +144,46 @@ def run_hmm(dirname, w, pk, cap):
                               "init_ll_rel_diff": rel(pk["init_ll"], ll),
                               "viterbi_rel_diff": rel(pk["viterbi_logprob"], vlp)})
     return out
+
+
+def run_dynamax(dirname, w, pk):
+    """dynamax float64: CPU seconds of one EM iteration (its own E-step and
+    M-step, jitted once, compilation excluded) and its first log-likelihood,
+    or None where dynamax cannot run the workload."""
+    lengths = w["lengths"]
+    if DYNAMAX is None or "dynamax" not in PEERS or len(set(lengths)) != 1 or (w["covariance_type"] != "full" and w["dim"] != 1):
+        return None
+    s, d = w["n_states"], w["dim"]
+    x = load(dirname, w).reshape(len(lengths), lengths[0], d)
+    p = w["init"]
+    model = DynamaxGaussianHMM(s, d)
+    params, props = model.initialize(
+        initial_probs=jnp.array(p["start"]),
+        transition_matrix=jnp.array(p["transmat"]).reshape(s, s),
+        emission_means=jnp.array(p["means"]).reshape(s, d),
+        emission_covariances=jnp.array(p["covars_full"]).reshape(s, d, d))
+    xs = jnp.array(x)
+
+    # One iteration exactly as dynamax's fit_em does it (its em_step), jitted once.
+    @jax.jit
+    def em_step(carry):
+        params, m_step_state = carry
+        batch_stats, lls = jax.vmap(partial(model.e_step, params))(xs)
+        lp = model.log_prior(params) + lls.sum()
+        params, m_step_state = model.m_step(params, props, batch_stats, m_step_state)
+        return (params, m_step_state), lls.sum(), lp
+
+    carry = (params, model.initialize_m_step_state(params, props))
+    carry, first_ll, _ = em_step(carry)  # compiles; the log-likelihood of the initial parameters
+    first_ll = float(first_ll)
+    state = {"carry": carry}
+
+    def one():
+        state["carry"], ll, _ = em_step(state["carry"])
+        jax.block_until_ready(ll)
+    secs, _ = time_median(one, 5, 50, 2.0)
+    return {"per_iter_s": secs, "first_ll": first_ll,
+            "first_ll_rel_diff": rel(first_ll, pk["ll_history"][0])}
 
 
 def run_gmm(dirname, w, pk):
@@ -154,47 +222,68 @@ def main():
     pk_by = {r["name"]: r for r in pkres["results"]}
     lines = []
     emit = lambda s="": (print(s, flush=True), lines.append(s))
-    emit(f"hmmlearn {hmmlearn.__version__}, scikit-learn {sklearn.__version__}, numpy {np.__version__}; "
+    import scipy
+    emit(f"hmmlearn {hmmlearn.__version__}, scikit-learn {sklearn.__version__}, numpy {np.__version__}, "
+         f"scipy {scipy.__version__}, dynamax {DYNAMAX} (JAX {jax.__version__ if DYNAMAX else '-'}, float64); "
          f"OMP/OPENBLAS/MKL threads = {os.environ.get('OPENBLAS_NUM_THREADS')}, "
          f"RAYON_NUM_THREADS = {os.environ.get('RAYON_NUM_THREADS')}")
     emit(f"single-core dgemm peak (nalgebra 1024x1024): {pkres['peak_gflops']:.1f} GFLOP/s")
     emit()
     emit("### Baum-Welch, per iteration (ms), one thread")
     emit()
-    emit("| workload | frames | S | D | phasekit | GFLOP/s | hmmlearn log | × | hmmlearn scaling | × | max rel. Δ log-lik (log / scaling) |")
-    emit("|---|---|---|---|---|---|---|---|---|---|---|")
+    emit("| workload | frames | S | D | phasekit | GFLOP/s | hmmlearn log | × | hmmlearn scaling | × | dynamax f64 | × | rel. Δ first log-lik (hmmlearn / dynamax) | max rel. Δ log-lik (hmmlearn log / scaling) |")
+    emit("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     small = []
     gmm = []
     for w in man["workloads"]:
         pk = pk_by[w["name"]]
         if w["kind"] == "gmm":
-            gmm.append((w, pk, run_gmm(dirname, w, pk)))
+            if "sklearn" in PEERS:
+                gmm.append((w, pk, run_gmm(dirname, w, pk)))
             continue
         r = run_hmm(dirname, w, pk, cap)
         if w["kind"] == "small":
             small.append((w, pk, r))
             continue
         p = pk["per_iter_s"]
-        lg, sc = r["log"]["per_iter_s"], r["scaling"]["per_iter_s"]
-        ok = "" if lg / p >= TARGET_LOG and sc / p >= TARGET_SCALING else " (target missed)"
+        dx = run_dynamax(dirname, w, pk)
+        if r:
+            lg, sc = r["log"]["per_iter_s"], r["scaling"]["per_iter_s"]
+            ok = "" if lg / p >= TARGET_LOG else " (target missed)"
+            hcol = f"{fmt_ms(lg)} | **{lg / p:.1f}**{ok} | {fmt_ms(sc)} | **{sc / p:.1f}**"
+            hll = f"{r['log']['first_ll_rel_diff']:.1e}"
+            hmax = f"{r['log']['max_rel_ll_diff']:.1e} / {r['scaling']['max_rel_ll_diff']:.1e}"
+        else:
+            hcol, hll, hmax = "not run | – | not run | –", "–", "–"
+        if dx:
+            dxok = "" if dx["per_iter_s"] / p >= TARGET_DYNAMAX else " (target missed)"
+            dcol = f"{fmt_ms(dx['per_iter_s'])} | **{dx['per_iter_s'] / p:.1f}**{dxok}"
+            dll = f"{dx['first_ll_rel_diff']:.1e}"
+        else:
+            why = "unequal lengths" if DYNAMAX and "dynamax" in PEERS else "not run"
+            dcol, dll = f"not run ({why}) | –", "–"
         emit(f"| {w['name']} | {sum(w['lengths'])} | {w['n_states']} | {w['dim']} | {fmt_ms(p)} | "
-             f"{pk['gflops']:.1f} | {fmt_ms(lg)} | **{lg / p:.1f}**{ok} | {fmt_ms(sc)} | **{sc / p:.1f}** | "
-             f"{r['log']['max_rel_ll_diff']:.1e} / {r['scaling']['max_rel_ll_diff']:.1e} |")
+             f"{pk['gflops']:.1f} | {hcol} | {dcol} | {hll} / {dll} | {hmax} |")
     if small:
         emit()
         emit("### HiddenMarkovModels.jl configuration (50 × 100 frames, 1-D), whole data set (µs)")
         emit()
-        emit("| K | op | phasekit | hmmlearn log | × | hmmlearn scaling | × |")
-        emit("|---|---|---|---|---|---|---|")
+        emit("| K | op | phasekit | hmmlearn log | × | hmmlearn scaling | × | dynamax f64 | × |")
+        emit("|---|---|---|---|---|---|---|---|---|")
         for w, pk, r in small:
+            dx = run_dynamax(dirname, w, pk)
             for op, key in (("forward", "forward_s"), ("forward-backward", "forward_backward_s"),
                             ("Viterbi", "viterbi_s"), ("Baum-Welch iteration", "per_iter_s")):
-                a, b, c = pk[key], r["log"][key], r["scaling"][key]
-                emit(f"| {w['n_states']} | {op} | {a * 1e6:.1f} | {b * 1e6:.1f} | {b / a:.1f} | {c * 1e6:.1f} | {c / a:.1f} |")
-        worst = max(max(r["log"]["max_rel_ll_diff"], r["scaling"]["max_rel_ll_diff"],
-                        r["log"]["init_ll_rel_diff"], r["log"]["viterbi_rel_diff"]) for _, _, r in small)
-        emit()
-        emit(f"largest relative difference of a log-likelihood / Viterbi log-probability: {worst:.1e}")
+                a = pk[key]
+                hh = (f"{r['log'][key] * 1e6:.1f} | {r['log'][key] / a:.1f} | "
+                      f"{r['scaling'][key] * 1e6:.1f} | {r['scaling'][key] / a:.1f}") if r else "– | – | – | –"
+                dd = f"{dx[key] * 1e6:.1f} | {dx[key] / a:.1f}" if dx and key in dx else "– | –"
+                emit(f"| {w['n_states']} | {op} | {a * 1e6:.1f} | {hh} | {dd} |")
+        if all(r for _, _, r in small):
+            worst = max(max(r["log"]["max_rel_ll_diff"], r["scaling"]["max_rel_ll_diff"],
+                            r["log"]["init_ll_rel_diff"], r["log"]["viterbi_rel_diff"]) for _, _, r in small)
+            emit()
+            emit(f"largest relative difference of a log-likelihood / Viterbi log-probability: {worst:.1e}")
     if gmm:
         emit()
         emit("### GMM EM vs scikit-learn GaussianMixture, per iteration (ms), one thread")

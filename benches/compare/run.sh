@@ -1,12 +1,15 @@
 #!/usr/bin/env bash
-# Speed of phasekit against hmmlearn 0.3.3 and scikit-learn 1.5.2 (issue 6),
-# everything single-threaded, in the same run on the same machine.
+# Speed of phasekit against the current releases of hmmlearn, scikit-learn
+# and dynamax (issue 18), every tool pinned to one core, in the same run on
+# the same machine.
 #
 #   bash benches/compare/run.sh [FILTER]   # workloads 1-4 (names containing FILTER)
+#   ROUNDS=3 bash benches/compare/run.sh   # phasekit and the peers alternating, 3 times
 #   bash benches/compare/run.sh threads    # workload 2 on 1 and 2 threads (bit-identical?)
 #   bash benches/compare/run.sh scaling    # one iteration at 1e4..1e7 frames: time, peak RSS
 #
-# Creates benches/compare/.venv (gitignored) with pinned versions, builds
+# Creates benches/compare/.venv (gitignored) with the current releases (the
+# versions are printed with the table), builds
 # `examples/bench_compare.rs` in release mode, lets it write every workload's
 # data and initial parameters to $OUT (raw f64 + manifest.json) and time
 # phasekit, then times hmmlearn (implementation="log", its default, and
@@ -18,17 +21,17 @@ set -euo pipefail
 
 HERE="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
 ROOT="$(cd "$HERE/../.." && pwd)"
-VENV="$HERE/.venv"
+VENV="${VENV:-$HERE/.venv}"
 OUT="${PHASEKIT_COMPARE_OUT:-$HERE/out}"
 PYTHON="${PYTHON:-python3}"
-PINS=(
-  "hmmlearn==0.3.3"
-  "numpy==1.26.4"
-  "scipy==1.13.1"
-  "scikit-learn==1.5.2"
-  "joblib==1.4.2"
-  "threadpoolctl==3.5.0"
-)
+# Current releases, upgraded on every run (the issue compares with what a
+# user installs today); the table prints the versions.
+PACKAGES=(hmmlearn numpy scipy scikit-learn dynamax jax)
+# The core every tool is pinned to (taskset), and how many alternations.
+CORE="${CORE:-1}"
+ROUNDS="${ROUNDS:-1}"
+PIN=()
+if command -v taskset >/dev/null; then PIN=(taskset -c "$CORE"); fi
 
 # One thread everywhere: BLAS, OpenMP, rayon.
 export OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1 RAYON_NUM_THREADS=1 PYTHONHASHSEED=0
@@ -40,8 +43,10 @@ rustc --version
 echo "load before: $(cut -d' ' -f1-3 /proc/loadavg)"
 
 echo "== build =="
-(cd "$ROOT" && cargo build --release --example bench_compare)
-BIN="${CARGO_TARGET_DIR:-$ROOT/target}/release/examples/bench_compare"
+if [ -z "${BIN:-}" ]; then
+  (cd "$ROOT" && cargo build --release --example bench_compare)
+  BIN="${CARGO_TARGET_DIR:-$ROOT/target}/release/examples/bench_compare"
+fi
 
 case "${1:-}" in
   threads)
@@ -57,12 +62,16 @@ case "${1:-}" in
     if [ ! -x "$VENV/bin/python" ]; then
       "$PYTHON" -m venv "$VENV"
     fi
-    "$VENV/bin/python" -m pip install --disable-pip-version-check -q --only-binary=:all: "${PINS[@]}"
-    mkdir -p "$OUT"
-    echo "== phasekit =="
-    "$BIN" run "$OUT" "${1:-}"
-    echo "== hmmlearn / scikit-learn (same data, same initial parameters) =="
-    "$VENV/bin/python" "$HERE/compare.py" "$OUT"
+    "$VENV/bin/python" -m pip install --disable-pip-version-check -q --only-binary=:all: --upgrade "${PACKAGES[@]}"
+    # XLA: one thread (on top of the pinning).
+    export XLA_FLAGS="--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
+    for round in $(seq 1 "$ROUNDS"); do
+      mkdir -p "$OUT/round$round"
+      echo "== round $round: phasekit (${PIN[*]:-unpinned}) =="
+      "${PIN[@]}" "$BIN" run "$OUT/round$round" "${1:-}"
+      echo "== round $round: hmmlearn / scikit-learn / dynamax (same data, same initial parameters) =="
+      "${PIN[@]}" "$VENV/bin/python" "$HERE/compare.py" "$OUT/round$round"
+    done
     ;;
 esac
 echo "load after: $(cut -d' ' -f1-3 /proc/loadavg)"
