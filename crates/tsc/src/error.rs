@@ -193,9 +193,9 @@ impl TscError {
                 {
                     let next = (2 * window).max(window + 2);
                     s.push_str(&format!(
-                        "\n  (the transition segments are too few or too short for {} transition \
-                         states: try a larger window than ±{window} (e.g. {}) or fewer {})",
-                        param("tsc_states", Some(&tsc_states.to_string())),
+                        "\n  (the transition segments are too few or too short for {tsc_states} \
+                         transition states: try a larger window than ±{window} (e.g. {}) or fewer \
+                         transition states ({}))",
                         param("window", Some(&next.to_string())),
                         param("tsc_states", None)
                     ));

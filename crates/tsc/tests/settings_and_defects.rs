@@ -167,7 +167,7 @@ fn too_short_transition_segments_name_window_and_tsc_states() {
     let msg = err.to_string();
     assert!(
         msg.contains("larger window than ±2 (e.g. `window = 4`)")
-            && msg.contains("fewer `tsc_states`"),
+            && msg.contains("fewer transition states (`tsc_states`)"),
         "{msg}"
     );
 }
