@@ -145,14 +145,11 @@ impl ModelFile {
         layout: Layout,
         feature_spec: FeatureSpec,
         standardisation: Option<Standardisation>,
+        roles: Roles,
         method: MethodInfo,
         fit: FitSummary,
         model: Model,
     ) -> Self {
-        let roles = Roles {
-            human: layout.human.clone(),
-            robot: layout.robot.clone(),
-        };
         ModelFile {
             format: FORMAT.into(),
             version: VERSION,
@@ -244,14 +241,13 @@ impl ModelFile {
                 d
             )));
         }
-        if self.roles.human != l.human || self.roles.robot != l.robot {
+        if self.roles.human() != l.human || self.roles.robot() != l.robot {
             return Err(CliError::new("roles and layout disagree"));
         }
         self.roles.check(d)?;
-        // The model's parts must agree (e.g. a union composition needs its union HMM),
-        // and its recorded settings must be valid ones.
+        // The model's parts must agree (e.g. a union composition needs its union HMM;
+        // its recorded settings were validated when read).
         self.model.validate()?;
-        self.method.settings.validate()?;
         let hv = matches!(
             l.velocity,
             crate::data::Velocity::Both | crate::data::Velocity::Human
