@@ -41,7 +41,8 @@
 //! // Baum-Welch from a two-state template (its parameters are ignored).
 //! let shape = |n_states| Gaussian::standard(CovarianceType::Full, Shape { n_states, dim: 1 });
 //! let fitted = BaumWelch::builder().max_iter(50).build()?.fit(&shape(2)?, &data)?;
-//! let means = fitted.model.emission().means();
+//! let mut means = fitted.model.emission().means().to_vec();
+//! means.sort_by(f64::total_cmp); // the states' order is arbitrary
 //! assert!((means[0] + 5.0).abs() < 0.5 && (means[1] - 5.0).abs() < 0.5, "{means:?}");
 //!
 //! // The most likely state path of the first sequence.

@@ -111,16 +111,24 @@ impl<E: Emission> Labeller for FilterLabeller<'_, E> {
 /// `Disagreement::new(FilterLabeller::joint(λ), FilterLabeller::marginal(λ, human)?)`:
 /// the state believed from both partners and the one believed from the human alone.
 pub struct Disagreement<A: Labeller, B: Labeller> {
-    /// The first labelling.
-    pub a: A,
-    /// The second labelling.
-    pub b: B,
+    a: A,
+    b: B,
 }
 
 impl<A: Labeller, B: Labeller> Disagreement<A, B> {
     /// The detector of frames where `a` and `b` disagree.
     pub fn new(a: A, b: B) -> Self {
         Disagreement { a, b }
+    }
+
+    /// The first labeller.
+    pub fn a(&self) -> &A {
+        &self.a
+    }
+
+    /// The second labeller.
+    pub fn b(&self) -> &B {
+        &self.b
     }
 
     /// One flag per frame of `seq`.

@@ -287,14 +287,20 @@ pub fn transition_sequences(
     min_run: usize,
 ) -> Result<SequenceSet> {
     if flags.len() != data.len() || data.lengths().zip(flags).any(|(len, f)| f.len() != len) {
+        let list = |v: Vec<usize>| {
+            v.iter()
+                .map(usize::to_string)
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
         return Err(TscError::InvalidSetting {
             name: "flags",
             reason: format!(
-                "one flag per frame of every sequence is needed: {} sequences of {:?} frames, flags for {} sequences of {:?}",
+                "one flag per frame of every sequence is needed: {} sequences of {} frames, flags for {} sequences of {}",
                 data.len(),
-                data.lengths().collect::<Vec<_>>(),
+                list(data.lengths().collect()),
                 flags.len(),
-                flags.iter().map(Vec::len).collect::<Vec<_>>()
+                list(flags.iter().map(Vec::len).collect())
             ),
         });
     }

@@ -424,3 +424,47 @@ fn settings_read_from_a_file_are_validated_as_in_code() {
         .to_string();
     assert!(err.contains("both input and output"), "{err}");
 }
+
+#[test]
+fn helpers_refuse_inputs_of_the_wrong_shape() {
+    use phasekit_tsc::detect::disagreement;
+    use phasekit_tsc::tsc_hmm::transition_sequences;
+    let train = data(2, 1);
+    // One flag per frame of every sequence, or an error (it sliced out of range).
+    let err = transition_sequences(&train, &vec![vec![true; 3]; 2], 1).unwrap_err();
+    assert_eq!(setting_name(err), "flags");
+    let all: Vec<Vec<bool>> = train.lengths().map(|n| vec![true; n]).collect();
+    assert_eq!(transition_sequences(&train, &all, 1).unwrap().len(), 2);
+    // Nothing flagged, and runs too short, are told apart.
+    let none: Vec<Vec<bool>> = train.lengths().map(|n| vec![false; n]).collect();
+    assert!(matches!(
+        transition_sequences(&train, &none, 2).unwrap_err(),
+        TscError::NoTransitions {
+            cause: NoTransitionCause::NothingFlagged { swamped: None },
+            ..
+        }
+    ));
+    let single: Vec<Vec<bool>> = train
+        .lengths()
+        .map(|n| (0..n).map(|t| t == 5).collect())
+        .collect();
+    assert!(matches!(
+        transition_sequences(&train, &single, 2).unwrap_err(),
+        TscError::NoTransitions {
+            min_run: 2,
+            cause: NoTransitionCause::RunsTooShort {
+                flagged: 2,
+                longest: 1
+            }
+        }
+    ));
+    // Two labellings of different lengths are not of the same frames.
+    assert_eq!(
+        setting_name(disagreement(&[0, 1], &[0]).unwrap_err()),
+        "labels"
+    );
+    // The predictor's input: roles outside the frames are an error, not a panic.
+    let frames = [0.0; 8];
+    let seq = Frames::new(&frames, 4).unwrap();
+    assert!(phasekit_tsc::human_frames(seq, &roles()).is_err());
+}
