@@ -149,12 +149,28 @@ mod tests {
             found: 11,
             capped: true,
             max: 10,
+            lowered: None,
         };
         let msg = CliError::from(gmeans).message;
         assert!(
             msg.contains("at least 11")
-                && msg.contains("(--max-states)")
+                && msg.contains("allow more (--max-states)")
                 && msg.contains("(--select bic)"),
+            "{msg}"
+        );
+        // When the data support fewer than asked for, it says so (not "allow more").
+        let lowered = TscError::GMeansAboveRange {
+            counting: "HMM states",
+            found: 21,
+            capped: true,
+            max: 20,
+            lowered: Some((30, "one more state would give too many parameters".into())),
+        };
+        let msg = CliError::from(lowered).message;
+        assert!(
+            msg.contains(
+                "more than the 20 HMM states allowed (of the 30 asked for by --max-states: one more state"
+            ) && !msg.contains("allow more"),
             "{msg}"
         );
     }

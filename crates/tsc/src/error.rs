@@ -70,6 +70,9 @@ pub enum TscError {
         capped: bool,
         /// The largest count allowed.
         max: usize,
+        /// `(asked, why)` when `max` is below the largest count asked for
+        /// because the data support no more.
+        lowered: Option<(usize, String)>,
     },
     /// Cross-validation: no candidate could be scored.
     NoCandidate {
@@ -207,14 +210,23 @@ impl TscError {
                 found,
                 capped,
                 max,
+                lowered,
             } => format!(
                 "G-means found {}{found} Gaussian clusters in the pooled frames, more than the {max} \
-                 {counting} allowed: the frames are not a mixture of so few Gaussian clusters at \
+                 {counting} allowed{}: the frames are not a mixture of so few Gaussian clusters at \
                  α = 1e-4, and the count would only be the cap, not a choice; set the number \
-                 ({}), allow more ({}) or choose by BIC ({})",
+                 ({}){} or choose by BIC ({})",
                 if *capped { "at least " } else { "" },
+                lowered.as_ref().map_or(String::new(), |(asked, why)| format!(
+                    " (of the {asked} asked for by {}: {why})",
+                    param("max_states", None)
+                )),
                 param("states", None),
-                param("max_states", None),
+                if lowered.is_some() {
+                    String::new()
+                } else {
+                    format!(", allow more ({})", param("max_states", None))
+                },
                 param("select", Some("bic")),
             ),
             TscError::NoCandidate { failures } => format!(

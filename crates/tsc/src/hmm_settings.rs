@@ -378,7 +378,12 @@ impl HmmSettings {
                 ))
             }
             Selector::GMeans => {
-                let clusters = gmeans_count(data.all_frames(), hi, "HMM states")?;
+                let clusters = gmeans_count(
+                    data.all_frames(),
+                    hi,
+                    "HMM states",
+                    lowered.map(|(asked, limit)| (asked, limit.to_string())),
+                )?;
                 let found = clusters.k;
                 let g = fit_gmeans_states(&bw, template, data, clusters, lo..=hi)?;
                 Ok((

@@ -109,12 +109,14 @@ pub fn max_supported_components(n: usize, d: usize) -> usize {
 /// G-means' count of the clusters of `frames` when it is at most `max`;
 /// [`TscError::GMeansAboveRange`] when G-means finds more (or is still
 /// splitting at `max + 1`), since the count would then only be the cap.
-/// G-means is deterministic (its splits start along the principal axis):
-/// the count needs no seed.
+/// `lowered` says why `max` is below the count asked for, if it is (for the
+/// error). G-means is deterministic (its splits start along the principal
+/// axis): the count needs no seed.
 pub fn gmeans_count(
     frames: Frames<'_>,
     max: usize,
     counting: &'static str,
+    lowered: Option<(usize, String)>,
 ) -> Result<GMeansResult> {
     let settings = GMeans::default()
         .to_builder()
@@ -127,6 +129,7 @@ pub fn gmeans_count(
             found: clusters.k,
             capped: clusters.capped,
             max,
+            lowered,
         });
     }
     Ok(clusters)
@@ -175,7 +178,9 @@ pub fn mixture_components(
             )?
             .best
         }
-        Selector::GMeans => gmeans_count(frames, hi, "mixture components")?.k.max(lo),
+        Selector::GMeans => gmeans_count(frames, hi, "mixture components", lowered.clone())?
+            .k
+            .max(lo),
     };
     Ok(AutoCount {
         count,
