@@ -1,0 +1,130 @@
+//! The parts recognition takes from `phasekit_tsc`: every method's fitted
+//! model, its online predictor, and the HMM that predictor filters with.
+//!
+//! This is the only module that looks inside [`Model`] and [`OnlinePredictor`]
+//! (their variants), so that a change of the presets' API touches one file.
+//!
+//! * the **action HMM** of a model ([`action_hmm`]): the joint HMM whose human
+//!   marginal the model's prediction filters with: the HMM itself (`hmm`), the
+//!   union HMM of a union TSC-HMM, the base `λ` of the gated TSC-HMM (its `λ_T`
+//!   only models transition segments, not whole demonstrations), and for the
+//!   static mixtures (`gmm`, `gmm-tsc`) the mixture as an HMM whose every row of
+//!   `A` is the mixture's weights (frames independent: the same likelihood and
+//!   the same responsibilities as the mixture);
+//! * an **action track** ([`ActionTrack`]): the model's own online predictor
+//!   (`Model::predictor(..).online()`, exactly what `predict` and `stream` run)
+//!   and the predictive likelihood `log p(o¹_{1:t} | λ_a) = Σ_τ log c_τ` that
+//!   its forward filter accumulates; a static mixture has no filter, so its
+//!   track filters the mixture-as-HMM alongside.
+
+use crate::error::Result;
+use phasekit_emission::Gaussian;
+use phasekit_gmm::Gmm;
+use phasekit_hmm::{ForwardFilter, Hmm};
+use phasekit_tsc::{Model, OnlinePredictor, Roles};
+
+/// The joint HMM whose human marginal `model`'s prediction filters with (see
+/// the module documentation).
+pub fn action_hmm(model: &Model) -> Result<Hmm<Gaussian>> {
+    match model {
+        Model::Hmm(h) => Ok(h.clone()),
+        Model::TscHmm { model, .. } => {
+            Ok(model.union.clone().unwrap_or_else(|| model.base.clone()))
+        }
+        Model::Gmm(g) | Model::GmmTsc { mixture: g, .. } => mixture_as_hmm(g),
+    }
+}
+
+/// A mixture as an HMM: `π = w`, every row of `A` equal to `w`, the
+/// components as emissions. Its predicted state distribution is `w` at every
+/// frame, so its filtered belief is the mixture's responsibilities and
+/// `log p(x_{1:T}) = Σ_t log Σ_k w_k N(x_t; μ_k, Σ_k)`.
+pub fn mixture_as_hmm(g: &Gmm) -> Result<Hmm<Gaussian>> {
+    let w = g.weights().to_vec();
+    let rows = (0..w.len()).flat_map(|_| w.iter().copied()).collect();
+    Ok(Hmm::new(w, rows, g.components().clone())?)
+}
+
+/// One action's online prediction and likelihood. No allocation per frame.
+#[derive(Debug, Clone)]
+pub struct ActionTrack {
+    online: OnlinePredictor,
+    /// For a predictor without a forward filter (static GMR): the mixture as an
+    /// HMM on the human's dims, for the likelihood and the belief.
+    filter: Option<ForwardFilter<Gaussian>>,
+    mean: Vec<f64>,
+    with_covariance: bool,
+}
+
+impl ActionTrack {
+    /// The track of `model` predicting `roles.robot` from `roles.human`; with
+    /// `with_covariance` every step also computes the predictive covariance.
+    pub fn new(model: &Model, roles: &Roles, with_covariance: bool) -> Result<Self> {
+        let online = model.predictor(roles)?.online();
+        let filter = match &online {
+            OnlinePredictor::Gmm { .. } => {
+                Some(ForwardFilter::on_dims(&action_hmm(model)?, &roles.human)?)
+            }
+            OnlinePredictor::Hmm(_) | OnlinePredictor::Gated { .. } => None,
+        };
+        Ok(ActionTrack {
+            online,
+            filter,
+            mean: vec![0.0; roles.robot.len()],
+            with_covariance,
+        })
+    }
+
+    /// Takes one human frame (the human's features, NaN = missing). On an error
+    /// (the frame is impossible under the model) the action should be given
+    /// up until the next reset.
+    pub fn step(&mut self, human: &[f64]) -> Result<()> {
+        let m = self.online.step(human, self.with_covariance)?;
+        self.mean.copy_from_slice(m);
+        if let Some(f) = &mut self.filter {
+            f.step(human)?;
+        }
+        Ok(())
+    }
+
+    /// `log p(o¹_{1:t} | λ_a)` of the human frames since the last reset.
+    pub fn log_likelihood(&self) -> f64 {
+        match (&self.filter, &self.online) {
+            (Some(f), _) => f.log_likelihood(),
+            (None, OnlinePredictor::Hmm(r)) => r.log_likelihood(),
+            (None, OnlinePredictor::Gated { base, .. }) => base.log_likelihood(),
+            // A static GMR's track always has its filter (see `new`).
+            (None, OnlinePredictor::Gmm { .. }) => f64::NEG_INFINITY,
+        }
+    }
+
+    /// The filtered belief over the states of [`action_hmm`] (its initial
+    /// distribution before the first frame).
+    pub fn belief(&self) -> &[f64] {
+        match (&self.filter, &self.online) {
+            (Some(f), _) => f.belief(),
+            (None, OnlinePredictor::Hmm(r)) => r.belief(),
+            (None, OnlinePredictor::Gated { base, .. }) => base.belief(),
+            (None, OnlinePredictor::Gmm { weights, .. }) => weights,
+        }
+    }
+
+    /// The predicted robot features of the last frame.
+    pub fn mean(&self) -> &[f64] {
+        &self.mean
+    }
+
+    /// The predictive covariance of the last frame (`O × O`; meaningful only
+    /// when the track computes covariances).
+    pub fn covariance(&self) -> &[f64] {
+        self.online.covariance()
+    }
+
+    /// Starts a new demonstration.
+    pub fn reset(&mut self) {
+        self.online.reset();
+        if let Some(f) = &mut self.filter {
+            f.reset();
+        }
+    }
+}
