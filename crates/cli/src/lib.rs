@@ -10,11 +10,14 @@ pub mod commands;
 pub mod data;
 pub mod error;
 pub mod experiment;
+pub mod library_file;
 pub mod model_file;
 pub mod npy;
 pub mod output;
 pub mod pipeline;
 pub mod plot;
+pub mod recognition_plot;
+pub mod recognition_report;
 
 pub use error::{CliError, Result};
 
@@ -29,5 +32,6 @@ pub fn run(cli: cli::Cli) -> Result<()> {
         Command::Evaluate(a) => commands::evaluate::run(a),
         Command::Plot(a) => commands::plot::run(a),
         Command::Demo(a) => commands::demo::run(a),
+        Command::Recognise(a) => commands::recognise::run(a),
     }
 }

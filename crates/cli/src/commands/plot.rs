@@ -23,6 +23,7 @@ pub fn run(a: &PlotArgs) -> Result<()> {
             };
             output::write_string(&p.output, &svg)
         }
+        PlotKind::Recognition(p) => super::recognise::plot(p),
         PlotKind::States(p) => {
             let mf = ModelFile::load(&p.model)?;
             let tables = read_tables(&data_files(&p.data)?, false)?;

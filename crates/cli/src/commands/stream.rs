@@ -4,9 +4,7 @@ use crate::bail;
 use crate::cli::StreamArgs;
 use crate::data::parse_cell;
 use crate::error::{CliError, Result};
-use crate::model_file::ModelFile;
 use crate::output::is_broken_pipe;
-use crate::pipeline::{prediction_header, prediction_line, StreamPredictor};
 use std::io::{BufRead, Write};
 use std::time::Instant;
 
@@ -73,9 +71,9 @@ fn warn(line_no: usize, msg: &str) {
 
 /// Runs `phasekit stream`.
 pub fn run(a: &StreamArgs) -> Result<()> {
-    let mf = ModelFile::load(&a.model)?;
-    let mut sp = StreamPredictor::new(&mf)?;
-    let names = &mf.layout.human_columns;
+    let target = crate::commands::recognise::StreamTarget::load(&a.model)?;
+    let mut sp = target.predictor(a.recogniser, a.covariance)?;
+    let names = target.human_columns();
     let n_in = sp.n_in();
     let stdin = std::io::stdin();
     let mut input = stdin.lock();
@@ -83,7 +81,7 @@ pub fn run(a: &StreamArgs) -> Result<()> {
     let mut out = std::io::BufWriter::new(stdout.lock());
     let write_err = |e: std::io::Error| CliError::new(format!("cannot write to stdout: {e}"));
     if !a.no_header {
-        let header = prediction_header(&mf, a.covariance).join(",");
+        let header = sp.header(a.covariance).join(",");
         if let Err(e) = writeln!(out, "{header}").and_then(|_| out.flush()) {
             if is_broken_pipe(&e) {
                 return Ok(());
@@ -193,14 +191,10 @@ pub fn run(a: &StreamArgs) -> Result<()> {
                 }
             }
         }
-        let (mean, cov) = match sp.step(&raw, a.covariance) {
-            Ok(x) => x,
-            Err(e) => {
-                eprintln!("phasekit: warning: stdin line {line_no}: prediction failed: {e}; no output for this line");
-                continue;
-            }
-        };
-        prediction_line(frame, mean, cov, &mut line_out);
+        if let Err(e) = sp.step_line(&raw, frame, a.covariance, &mut line_out) {
+            eprintln!("phasekit: warning: stdin line {line_no}: prediction failed: {e}; no output for this line");
+            continue;
+        }
         frame += 1;
         if let Err(e) = writeln!(out, "{line_out}").and_then(|_| out.flush()) {
             if is_broken_pipe(&e) {
