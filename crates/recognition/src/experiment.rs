@@ -24,7 +24,10 @@
 //!   demonstration, so the rest that ends one and starts the next is theirs);
 //!   scored per frame (decision = the demonstration's action) for the composed
 //!   HMM and for per-action filters with automatic resets, with resets at the
-//!   true starts (an oracle segmentation) and with no reset.
+//!   true starts (an oracle segmentation) and with no reset; an interaction's
+//!   decision settles when it is right for `stream_hold_frames` frames in a row
+//!   ([`crate::metrics::held_frame`]: its end is rest, where the decision may
+//!   rightly move on).
 //!
 //! Seeds run in parallel; every number depends on the seed only.
 
@@ -32,7 +35,8 @@ use crate::composed::ComposedRecogniser;
 use crate::error::{RecognitionError, Result};
 use crate::library::{FittedAction, Library, LibrarySettings};
 use crate::metrics::{
-    correct_from_first_third, frames_observed, median_or_never, settled_frame, Confusion,
+    correct_from_first_third, frames_observed, held_frame, median_or_never, settled_frame,
+    Confusion,
 };
 use crate::recogniser::{AutoReset, Decision, PredictionMode, Recogniser, RecogniserSettings};
 use crate::rejection::Rejection;
@@ -87,11 +91,18 @@ pub struct ExperimentSettings {
     pub frame_rate: f64,
     /// Automatic resets of the per-action filters in streams.
     pub auto_reset: AutoReset,
+    /// A method (label, settings) whose models recognise the actions for every
+    /// method evaluated (which still predicts); `None`: each method recognises itself.
+    pub recognition: Option<(String, Method)>,
+    /// A stream's decision settles on an interaction when it is right for this
+    /// many frames in a row (or to the interaction's end).
+    pub stream_hold_frames: usize,
 }
 
 impl Default for ExperimentSettings {
     /// 100 seeds, all but two training demonstrations, no standardisation, the
-    /// default library, streams of 12 demonstrations, 30 Hz, default resets.
+    /// default library, streams of 12 demonstrations, 30 Hz, default resets,
+    /// each method recognising itself, decisions held 30 frames (1 s) in streams.
     fn default() -> Self {
         ExperimentSettings {
             seeds: 100,
@@ -101,6 +112,8 @@ impl Default for ExperimentSettings {
             stream_length: 12,
             frame_rate: 30.0,
             auto_reset: AutoReset::default(),
+            recognition: None,
+            stream_hold_frames: 30,
         }
     }
 }
@@ -286,7 +299,8 @@ pub struct StreamRow {
     pub recogniser: StreamRecogniser,
     /// Fraction of frames whose decision is the true action.
     pub frame_accuracy: Stat,
-    /// Median frames of an interaction observed until the decision settles on it (never = +∞).
+    /// Median frames of an interaction observed until the decision settles on it:
+    /// right for `stream_hold_frames` frames in a row or to the interaction's end (never = +∞).
     pub median_delay_frames: Option<f64>,
     /// The same in seconds.
     pub median_delay_seconds: Option<f64>,
@@ -296,6 +310,23 @@ pub struct StreamRow {
     pub mse: Stat,
     /// The same when told the action and its start (the oracle).
     pub oracle_mse: Stat,
+    /// Seeds.
+    pub seeds: usize,
+}
+
+/// What the libraries' calibration set, over seeds.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CalibrationRow {
+    /// Method label.
+    pub method: String,
+    /// The posterior's temperature.
+    pub temperature: Stat,
+    /// Mean held-out log score of the true action at that temperature.
+    pub log_score: Stat,
+    /// The likelihood-per-frame threshold (nats per frame; seeds where it could be set).
+    pub likelihood_per_frame: Stat,
+    /// The threshold-model threshold (nats).
+    pub threshold_model: Stat,
     /// Seeds.
     pub seeds: usize,
 }
@@ -311,6 +342,8 @@ pub struct Report {
     pub settings: ExperimentSettings,
     /// Seeds run (1 when every training demonstration is used).
     pub seeds: usize,
+    /// Factor from data units to the reported units of the MSEs.
+    pub unit_scale: f64,
     /// Accuracy rows `{method, action, fraction, accuracy, std, seeds}`.
     pub recognition: Vec<AccuracyRow>,
     /// When decisions settle.
@@ -323,6 +356,8 @@ pub struct Report {
     pub unknown: Vec<UnknownRow>,
     /// Continuous streams.
     pub streams: Vec<StreamRow>,
+    /// The libraries' calibration.
+    pub calibration: Vec<CalibrationRow>,
     /// Failed (method, seed, message).
     pub failures: Vec<(String, u64, String)>,
 }
@@ -331,8 +366,8 @@ pub struct Report {
 struct Demo {
     action: usize,
     decisions: Vec<Decision>,
-    /// Rejected at each frame by (likelihood per frame, threshold model).
-    rejected: Vec<[bool; 2]>,
+    /// Rejected at each frame by (likelihood per frame, threshold model, either).
+    rejected: Vec<[bool; 3]>,
     /// Squared errors summed over frames: oracle, most probable, mixture, mixture rejecting.
     se: [f64; 4],
     frames: usize,
@@ -342,8 +377,8 @@ struct Demo {
 struct Rejections {
     left_out: usize,
     action: usize,
-    at_end: [bool; 2],
-    frames: [usize; 2],
+    at_end: [bool; 3],
+    frames: [usize; 3],
     length: usize,
 }
 
@@ -361,6 +396,7 @@ struct SeedOutcome {
     demos: Vec<Demo>,
     rejections: Vec<Rejections>,
     streams: Vec<StreamScore>,
+    calibration: crate::library::Calibration,
 }
 
 /// Features made comparable: `(x − shift) / scale`.
@@ -411,13 +447,13 @@ fn settings_for(both: bool, auto_reset: Option<AutoReset>) -> RecogniserSettings
     s
 }
 
-/// Whether the statistics reject under the library's thresholds.
-fn rejects(library: &Library, stats: (f64, f64)) -> [bool; 2] {
+/// Whether the statistics reject under the library's thresholds: likelihood
+/// per frame, threshold model, either.
+fn rejects(library: &Library, stats: (f64, f64)) -> [bool; 3] {
     let c = library.calibration();
-    [
-        c.likelihood_per_frame.is_some_and(|l| stats.0 < l),
-        c.threshold_model.is_some_and(|l| stats.1 < l),
-    ]
+    let pf = c.likelihood_per_frame.is_some_and(|l| stats.0 < l);
+    let tm = c.threshold_model.is_some_and(|l| stats.1 < l);
+    [pf, tm, pf || tm]
 }
 
 fn run_seed(
@@ -480,7 +516,14 @@ fn run_seed(
         .map(|(a, train)| {
             let train: Vec<Vec<f64>> = train.iter().map(|q| sc.apply(q)).collect();
             let set = SequenceSet::new(&train, d)?;
-            FittedAction::fit(&a.name, &set, method, &ds.roles, &s.library)
+            FittedAction::fit(
+                &a.name,
+                &set,
+                method,
+                s.recognition.as_ref().map(|r| &r.1),
+                &ds.roles,
+                &s.library,
+            )
         })
         .collect::<Result<Vec<_>>>()?;
     let library = Library::assemble(&fitted, &ds.roles, &s.library)?;
@@ -545,8 +588,8 @@ fn run_seed(
             let mut r = Recogniser::new(&lib, settings_for(true, None))?;
             for (a, human, _) in &tests {
                 r.reset();
-                let mut frames = [0usize; 2];
-                let mut last = [false; 2];
+                let mut frames = [0usize; 3];
+                let mut last = [false; 3];
                 for x in human.chunks_exact(h) {
                     r.step(x)?;
                     last = rejects(&lib, r.statistics());
@@ -582,6 +625,7 @@ fn run_seed(
         streams.push(score_stream(ds, &sc, &library, &tests, &picks, variant, s)?);
     }
     Ok(SeedOutcome {
+        calibration: library.calibration().clone(),
         demos,
         rejections,
         streams,
@@ -644,7 +688,7 @@ fn score_stream(
         }
         score
             .delays
-            .push(settled_frame(&decisions, *a).map(|f| (f + 1) as f64));
+            .push(held_frame(&decisions, *a, s.stream_hold_frames).map(|f| (f + 1) as f64));
     }
     Ok(score)
 }
@@ -695,12 +739,14 @@ pub fn run(
         methods: methods.iter().map(|m| m.0.clone()).collect(),
         settings: settings.clone(),
         seeds,
+        unit_scale: ds.unit_scale,
         recognition: Vec::new(),
         settled: Vec::new(),
         confusion: Vec::new(),
         end_to_end: Vec::new(),
         unknown: Vec::new(),
         streams: Vec::new(),
+        calibration: Vec::new(),
         failures: Vec::new(),
     };
     for (j, (label, _)) in methods.iter().enumerate() {
@@ -883,9 +929,13 @@ fn aggregate(
         });
     }
     // Unknown motions.
-    for (k, rejection) in [Rejection::LikelihoodPerFrame, Rejection::ThresholdModel]
-        .into_iter()
-        .enumerate()
+    for (k, rejection) in [
+        Rejection::LikelihoodPerFrame,
+        Rejection::ThresholdModel,
+        Rejection::Either,
+    ]
+    .into_iter()
+    .enumerate()
     {
         let full: Vec<&Demo> = ok.iter().flat_map(|o| &o.demos).collect();
         let frames: usize = full.iter().map(|d| d.rejected.len()).sum();
@@ -939,6 +989,21 @@ fn aggregate(
             });
         }
     }
+    let cal = |f: &dyn Fn(&crate::library::Calibration) -> Option<f64>| {
+        Stat::of(
+            &ok.iter()
+                .filter_map(|o| f(&o.calibration))
+                .collect::<Vec<_>>(),
+        )
+    };
+    report.calibration.push(CalibrationRow {
+        method: label.to_string(),
+        temperature: cal(&|c| Some(c.temperature)),
+        log_score: cal(&|c| Some(c.log_score)),
+        likelihood_per_frame: cal(&|c| c.likelihood_per_frame),
+        threshold_model: cal(&|c| c.threshold_model),
+        seeds,
+    });
     // Streams.
     for (v, variant) in StreamRecogniser::ALL.into_iter().enumerate() {
         let scores: Vec<&StreamScore> = ok.iter().map(|o| &o.streams[v]).collect();

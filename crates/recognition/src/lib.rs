@@ -30,6 +30,7 @@
 //! #         -> phasekit_recognition::Result<()> {
 //! let (library, _reports) = Library::fit(
 //!     &[("handshake", handshakes, method), ("wave", waves, method)],
+//!     None,                                          // each model recognises its action
 //!     roles,
 //!     &LibrarySettings::default(),
 //! )?;

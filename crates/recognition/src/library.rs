@@ -70,12 +70,16 @@ pub struct LibrarySettings {
     /// Which quantile of the held-out statistics is the threshold (0: the lowest,
     /// so that no held-out known demonstration would have been rejected).
     pub calibration_quantile: f64,
+    /// The posterior's temperature `τ` (`p(a | o) ∝ p(a) exp(ℓ_a / τ)`, see
+    /// [`Calibration::temperature`]): a value ≥ 1, or `None` to choose it on the
+    /// held-out demonstrations (the best log score of their true action).
+    pub temperature: Option<f64>,
 }
 
 impl Default for LibrarySettings {
     /// Uniform prior; 5 rest frames at each end, `rest_reg = 1e-2`, rest stays
     /// 30 frames (1 s at 30 Hz); thresholds by 4-fold cross-validation at the
-    /// lowest held-out value.
+    /// lowest held-out value; temperature 1 (Bayes' rule as it is).
     fn default() -> Self {
         LibrarySettings {
             prior: Prior::Uniform,
@@ -84,6 +88,7 @@ impl Default for LibrarySettings {
             rest_stay: 30.0,
             calibration_folds: 4,
             calibration_quantile: 0.0,
+            temperature: Some(1.0),
         }
     }
 }
@@ -119,9 +124,22 @@ impl LibrarySettings {
         if let Prior::Given(w) = &self.prior {
             check_weights(w)?;
         }
+        if let Some(t) = self.temperature {
+            if !(t.is_finite() && t >= 1.0) {
+                return bad(
+                    "temperature",
+                    format!("must be a finite number ≥ 1 (or chosen on held-out demonstrations), got {t}"),
+                );
+            }
+        }
         Ok(())
     }
 }
+
+/// Temperatures tried when the temperature is chosen on held-out demonstrations.
+pub const TEMPERATURES: [f64; 14] = [
+    1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0, 24.0, 32.0, 48.0, 64.0, 96.0,
+];
 
 fn check_weights(w: &[f64]) -> Result<()> {
     if w.iter().any(|v| !(v.is_finite() && *v > 0.0)) {
@@ -148,8 +166,10 @@ struct HeldOut {
 pub struct FittedAction {
     /// The action's name.
     pub name: String,
-    /// The fitted model.
+    /// The fitted model (it predicts).
     pub model: Model,
+    /// The model whose likelihood recognises the action, when it is not `model`.
+    pub recognition: Option<Model>,
     /// What the fit did.
     pub summary: FitSummary,
     /// Training demonstrations.
@@ -173,10 +193,13 @@ pub struct FittedAction {
 impl FittedAction {
     /// Fits `method` to the action's joint training demonstrations `data` and
     /// computes what the library needs from them (see the module documentation).
+    /// With `recognition`, a second model fitted with that method gives the
+    /// action's likelihood (and is the one calibrated); `method`'s predicts.
     pub fn fit(
         name: &str,
         data: &SequenceSet,
         method: &Method,
+        recognition: Option<&Method>,
         roles: &Roles,
         settings: &LibrarySettings,
     ) -> Result<Self> {
@@ -192,6 +215,12 @@ impl FittedAction {
         };
         roles.check(data.dim()).map_err(action)?;
         let (model, summary) = method.fit(data, roles).map_err(action)?;
+        let recognition_model = recognition
+            .map(|m| m.fit(data, roles).map(|f| f.0))
+            .transpose()
+            .map_err(action)?;
+        // The method whose likelihood is calibrated.
+        let scored = recognition.unwrap_or(method);
         let hmm = action_hmm(&model)?;
         let (exit, end) = exit_and_end(&hmm, data)?;
         let rest_frames = rest_frames(data, settings.rest_frames);
@@ -208,7 +237,7 @@ impl FittedAction {
                 let fold_model = data
                     .subset(&train)
                     .map_err(RecognitionError::from)
-                    .and_then(|d| Ok(method.fit(&d, roles)?.0));
+                    .and_then(|d| Ok(scored.fit(&d, roles)?.0));
                 let Ok(fold_model) = fold_model else {
                     failed_folds += 1;
                     continue;
@@ -221,14 +250,16 @@ impl FittedAction {
         }
         let in_sample = held_out.is_empty();
         if in_sample {
+            let full = recognition_model.as_ref().unwrap_or(&model);
             for k in 0..n {
-                held_out.push(score(&model, roles, data.get(k), 0)?);
+                held_out.push(score(full, roles, data.get(k), 0)?);
             }
-            fold_hmms = vec![human_hmm(&model)?];
+            fold_hmms = vec![human_hmm(full)?];
         }
         Ok(FittedAction {
             name: name.to_string(),
             model,
+            recognition: recognition_model,
             summary,
             demonstrations: n,
             exit,
@@ -246,7 +277,7 @@ impl FittedAction {
 /// The human's frames of a joint demonstration and their running
 /// log-likelihood under `model` (`−inf` from a frame the model finds impossible on).
 fn score(model: &Model, roles: &Roles, seq: Frames<'_>, fold: usize) -> Result<HeldOut> {
-    let mut track = ActionTrack::new(model, roles, false)?;
+    let mut track = ActionTrack::new(model, None, roles, false)?;
     let human: Vec<f64> = seq
         .iter()
         .flat_map(|x| roles.human.iter().map(move |&k| x[k]))
@@ -318,8 +349,12 @@ fn rest_frames(data: &SequenceSet, k: usize) -> Vec<f64> {
 pub struct LibraryAction {
     /// The action's name.
     pub name: String,
-    /// Its fitted model (any method).
+    /// Its fitted model (any method): it predicts, and recognises unless
+    /// `recognition` is given.
     pub model: Model,
+    /// A second model whose likelihood recognises the action (the prediction stays `model`'s).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub recognition: Option<Model>,
     /// `e_i`: per state of the action HMM, the probability of leaving the interaction at a frame.
     pub exit: Vec<f64>,
     /// `ε_i`: where the training demonstrations end, per state of the action HMM.
@@ -344,8 +379,11 @@ pub struct RestState {
 /// The rejection thresholds and how they were set.
 ///
 /// Statistics at frame `t` (`ℓ_a(t) = log p(o¹_{1:t} | λ_a)`, `ℓ_T(t)` the
-/// threshold model's): **likelihood per frame** `max_a ℓ_a(t) / t` (nats per
-/// frame: the mean log-likelihood of the best action); **threshold model** the
+/// threshold model's): **likelihood per frame** `max_a ℓ_a(t) / n_t` (nats per
+/// frame: the mean log-likelihood of the best action, with `n_t` the frames'
+/// worth of observed values, `(observed values)/H`, so that a frame with
+/// missing values, whose log-density is its observed values' marginal, counts
+/// for what it holds); **threshold model** the
 /// log-likelihood ratio `max_a ℓ_a(t) − ℓ_T(t)` (nats: Lee & Kim's test is this
 /// ratio against 0; not divided by `t`, so that the evidence of a motion that
 /// leaves the known order accumulates rather than being averaged away). A
@@ -366,6 +404,21 @@ pub struct Calibration {
     pub held_out: bool,
     /// Cross-validation folds whose fit failed (skipped).
     pub failed_folds: usize,
+    /// The posterior's temperature `τ ≥ 1`: `p(a | o¹_{1:t}) ∝ p(a) exp(ℓ_a(t) / τ)`.
+    /// Consecutive frames are far from independent, so the models' likelihood
+    /// ratios overstate the evidence and `τ = 1` is overconfident; `τ` divides
+    /// it back. The decision (with a uniform prior) does not depend on it, the
+    /// posterior and the mixture's weights do.
+    #[serde(default = "one")]
+    pub temperature: f64,
+    /// Mean log score `(1/N) Σ log p_τ(true action | o¹_{1:t})` of the held-out
+    /// frames at that temperature.
+    #[serde(default)]
+    pub log_score: f64,
+}
+
+fn one() -> f64 {
+    1.0
 }
 
 /// A library of interactions (see the module documentation). Every library,
@@ -451,9 +504,11 @@ fn check_names<'a>(names: impl Iterator<Item = &'a str>) -> Result<()> {
 
 impl Library {
     /// Fits every action (`(name, joint demonstrations, method)`) and assembles
-    /// the library: [`FittedAction::fit`] then [`Library::assemble`].
+    /// the library: [`FittedAction::fit`] then [`Library::assemble`]. With
+    /// `recognition`, every action also gets a recognition model of that method.
     pub fn fit(
         actions: &[(&str, &SequenceSet, &Method)],
+        recognition: Option<&Method>,
         roles: &Roles,
         settings: &LibrarySettings,
     ) -> Result<(Library, Vec<FitSummary>)> {
@@ -462,7 +517,9 @@ impl Library {
         check_same_dim(actions.iter().map(|a| (a.0, a.1.dim())))?;
         let fitted = actions
             .iter()
-            .map(|(name, data, method)| FittedAction::fit(name, data, method, roles, settings))
+            .map(|(name, data, method)| {
+                FittedAction::fit(name, data, method, recognition, roles, settings)
+            })
             .collect::<Result<Vec<_>>>()?;
         let library = Library::assemble(&fitted, roles, settings)?;
         Ok((library, fitted.into_iter().map(|f| f.summary).collect()))
@@ -501,13 +558,14 @@ impl Library {
             }
         };
         let rest = rest_state(actions, d, settings)?;
-        let calibration = calibrate(actions, roles, settings)?;
+        let calibration = calibrate(actions, roles, settings, &prior)?;
         let library = Library {
             actions: actions
                 .iter()
                 .map(|a| LibraryAction {
                     name: a.name.clone(),
                     model: a.model.clone(),
+                    recognition: a.recognition.clone(),
                     exit: a.exit.clone(),
                     end: a.end.clone(),
                     demonstrations: a.demonstrations,
@@ -538,6 +596,16 @@ impl Library {
                 source,
             };
             a.model.validate().map_err(at)?;
+            if let Some(r) = &a.recognition {
+                r.validate().map_err(at)?;
+                if r.dim() != d {
+                    return invalid(format!(
+                        "action `{}`: its recognition model has {} features, its model {d}",
+                        a.name,
+                        r.dim()
+                    ));
+                }
+            }
             let s = action_hmm(&a.model)?.n_states();
             if a.exit.len() != s || a.end.len() != s {
                 return invalid(format!(
@@ -602,6 +670,12 @@ impl Library {
             .any(|v| !v.is_finite())
         {
             return invalid("a rejection threshold is not a finite number".into());
+        }
+        if !(c.temperature.is_finite() && c.temperature >= 1.0) {
+            return invalid(format!(
+                "the posterior's temperature must be a finite number ≥ 1, got {}",
+                c.temperature
+            ));
         }
         Ok(())
     }
@@ -674,13 +748,16 @@ impl Library {
         &self.calibration
     }
 
-    /// The threshold model over every action's human-marginal states (see
-    /// [`crate::rejection::threshold_hmm`]).
+    /// The threshold model over every action's human-marginal states (of the
+    /// recognition models; see [`crate::rejection::threshold_hmm`]).
     pub fn threshold_model(&self) -> Result<Hmm<Gaussian>> {
         let marginals = self
             .actions
             .iter()
-            .map(|a| Ok(action_hmm(&a.model)?.marginal(&self.roles.human)?))
+            .map(|a| {
+                let m = a.recognition.as_ref().unwrap_or(&a.model);
+                Ok(action_hmm(m)?.marginal(&self.roles.human)?)
+            })
             .collect::<Result<Vec<_>>>()?;
         threshold_hmm(&marginals)
     }
@@ -765,15 +842,19 @@ fn rest_state(actions: &[FittedAction], d: usize, settings: &LibrarySettings) ->
     Ok(rest)
 }
 
-/// The thresholds of [`Calibration`] from the held-out curves.
+/// The thresholds and the temperature of [`Calibration`] from the held-out curves.
 fn calibrate(
     actions: &[FittedAction],
     roles: &Roles,
     settings: &LibrarySettings,
+    prior: &[f64],
 ) -> Result<Calibration> {
     let marginals = actions
         .iter()
-        .map(|a| Ok(action_hmm(&a.model)?.marginal(&roles.human)?))
+        .map(|a| {
+            let m = a.recognition.as_ref().unwrap_or(&a.model);
+            Ok(action_hmm(m)?.marginal(&roles.human)?)
+        })
         .collect::<Result<Vec<_>>>()?;
     let h = roles.human.len();
     let (mut per_frame, mut versus) = (Vec::new(), Vec::new());
@@ -796,10 +877,13 @@ fn calibrate(
     for (model, held) in held {
         let mut filter = thresholds[model].filter();
         let (mut lo_pf, mut lo_tm) = (f64::INFINITY, f64::INFINITY);
+        let mut observed = 0usize;
         let mut dead = false;
-        for (t, (x, own)) in held.human.chunks_exact(h).zip(&held.own).enumerate() {
-            let n = (t + 1) as f64;
-            lo_pf = lo_pf.min(own / n);
+        for (x, own) in held.human.chunks_exact(h).zip(&held.own) {
+            observed += x.iter().filter(|v| !v.is_nan()).count();
+            if observed > 0 {
+                lo_pf = lo_pf.min(own / (observed as f64 / h as f64));
+            }
             dead = dead || filter.step(x).is_err();
             // A frame impossible under the threshold model cannot count against the action.
             let lt = if dead {
@@ -817,13 +901,86 @@ fn calibrate(
         per_frame.push(lo_pf);
         versus.push(lo_tm);
     }
+    let (temperature, log_score) = temperature(actions, roles, settings, prior)?;
     let q = settings.calibration_quantile;
     let finite = |v: f64| v.is_finite().then_some(v);
     Ok(Calibration {
+        temperature,
+        log_score,
         likelihood_per_frame: quantile(&per_frame, q).and_then(finite),
         threshold_model: quantile(&versus, q).and_then(finite),
         demonstrations: per_frame.len(),
         held_out: actions.iter().all(|a| !a.in_sample),
         failed_folds: actions.iter().map(|a| a.failed_folds).sum(),
+    })
+}
+
+/// The temperature (given, or the best of [`TEMPERATURES`] by the held-out
+/// log score) and its mean log score. A held-out demonstration of action `a`
+/// is scored by `a`'s fold model and by the other actions' full models, none
+/// of which saw it.
+fn temperature(
+    actions: &[FittedAction],
+    roles: &Roles,
+    settings: &LibrarySettings,
+    prior: &[f64],
+) -> Result<(f64, f64)> {
+    let h = roles.human.len();
+    let n = actions.len();
+    let log_prior: Vec<f64> = prior.iter().map(|p| p.ln()).collect();
+    // Per held-out demonstration: its action and the running ℓ_b(t) of every action, T × A.
+    let mut curves: Vec<(usize, Vec<f64>)> = Vec::new();
+    for (a, action) in actions.iter().enumerate() {
+        for held in &action.held_out {
+            let t = held.own.len();
+            let mut ll = vec![0.0; t * n];
+            for (b, other) in actions.iter().enumerate() {
+                if b == a {
+                    (0..t).for_each(|i| ll[i * n + b] = held.own[i]);
+                    continue;
+                }
+                let mut track =
+                    ActionTrack::new(&other.model, other.recognition.as_ref(), roles, false)?;
+                let mut dead = false;
+                for (i, x) in held.human.chunks_exact(h).enumerate() {
+                    dead = dead || track.step(x).is_err();
+                    ll[i * n + b] = if dead {
+                        f64::NEG_INFINITY
+                    } else {
+                        track.log_likelihood()
+                    };
+                }
+            }
+            curves.push((a, ll));
+        }
+    }
+    let score = |tau: f64| {
+        let (mut total, mut frames) = (0.0, 0usize);
+        let mut scaled = vec![0.0; n];
+        let mut p = vec![0.0; n];
+        for (a, ll) in &curves {
+            for row in ll.chunks_exact(n) {
+                scaled.iter_mut().zip(row).for_each(|(s, l)| *s = l / tau);
+                crate::recogniser::action_posterior(&log_prior, &scaled, &mut p);
+                total += p[*a].max(1e-300).ln();
+                frames += 1;
+            }
+        }
+        total / frames.max(1) as f64
+    };
+    Ok(match settings.temperature {
+        Some(t) => (t, score(t)),
+        None => {
+            TEMPERATURES
+                .iter()
+                .map(|&t| (t, score(t)))
+                .fold((1.0, f64::NEG_INFINITY), |best, x| {
+                    if x.1 > best.1 {
+                        x
+                    } else {
+                        best
+                    }
+                })
+        }
     })
 }

@@ -23,6 +23,25 @@ pub fn settled_frame(decisions: &[Decision], truth: usize) -> Option<usize> {
     first
 }
 
+/// The first frame from which the decision is `truth` for `hold` frames in a
+/// row, or up to the end of `decisions` (a right run that the end cuts short
+/// counts), or `None`. In a stream an interaction ends in rest, where the
+/// decision may rightly move on, so "right to the end" would be the wrong test.
+pub fn held_frame(decisions: &[Decision], truth: usize, hold: usize) -> Option<usize> {
+    let mut run = 0;
+    for (t, d) in decisions.iter().enumerate() {
+        if *d == Decision::Action(truth) {
+            run += 1;
+            if run >= hold.max(1) {
+                return Some(t + 1 - run);
+            }
+        } else {
+            run = 0;
+        }
+    }
+    (run > 0).then(|| decisions.len() - run)
+}
+
 /// Whether the decision is right from the first third of the demonstration on:
 /// settled at or before frame `⌈T/3⌉ − 1` (the last frame of the first third).
 pub fn correct_from_first_third(decisions: &[Decision], truth: usize) -> bool {

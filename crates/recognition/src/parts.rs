@@ -15,7 +15,10 @@
 //!   (`Model::predictor(..).online()`, exactly what `predict` and `stream` run)
 //!   and the predictive likelihood `log p(o¹_{1:t} | λ_a) = Σ_τ log c_τ` that
 //!   its forward filter accumulates; a static mixture has no filter, so its
-//!   track filters the mixture-as-HMM alongside.
+//!   track filters the mixture-as-HMM alongside. An action may also have a
+//!   separate *recognition model*: then the likelihood is that model's (its
+//!   action HMM's human marginal, filtered alongside) and the prediction stays
+//!   the predicting model's.
 
 use crate::error::Result;
 use phasekit_emission::Gaussian;
@@ -49,23 +52,31 @@ pub fn mixture_as_hmm(g: &Gmm) -> Result<Hmm<Gaussian>> {
 #[derive(Debug, Clone)]
 pub struct ActionTrack {
     online: OnlinePredictor,
-    /// For a predictor without a forward filter (static GMR): the mixture as an
-    /// HMM on the human's dims, for the likelihood and the belief.
+    /// The filter whose normalisers are the likelihood, when it is not the
+    /// predictor's own: the recognition model's, or for a static GMR the
+    /// mixture as an HMM on the human's dims.
     filter: Option<ForwardFilter<Gaussian>>,
     mean: Vec<f64>,
     with_covariance: bool,
 }
 
 impl ActionTrack {
-    /// The track of `model` predicting `roles.robot` from `roles.human`; with
+    /// The track of `model` predicting `roles.robot` from `roles.human`, its
+    /// likelihood from `recognition` when given (else from `model`); with
     /// `with_covariance` every step also computes the predictive covariance.
-    pub fn new(model: &Model, roles: &Roles, with_covariance: bool) -> Result<Self> {
+    pub fn new(
+        model: &Model,
+        recognition: Option<&Model>,
+        roles: &Roles,
+        with_covariance: bool,
+    ) -> Result<Self> {
         let online = model.predictor(roles)?.online();
-        let filter = match &online {
-            OnlinePredictor::Gmm { .. } => {
+        let filter = match (recognition, &online) {
+            (Some(r), _) => Some(ForwardFilter::on_dims(&action_hmm(r)?, &roles.human)?),
+            (None, OnlinePredictor::Gmm { .. }) => {
                 Some(ForwardFilter::on_dims(&action_hmm(model)?, &roles.human)?)
             }
-            OnlinePredictor::Hmm(_) | OnlinePredictor::Gated { .. } => None,
+            (None, OnlinePredictor::Hmm(_) | OnlinePredictor::Gated { .. }) => None,
         };
         Ok(ActionTrack {
             online,
@@ -98,14 +109,13 @@ impl ActionTrack {
         }
     }
 
-    /// The filtered belief over the states of [`action_hmm`] (its initial
-    /// distribution before the first frame).
+    /// The predicting model's filtered belief over the states of its
+    /// [`action_hmm`] (a static mixture's: the responsibilities of the last frame).
     pub fn belief(&self) -> &[f64] {
-        match (&self.filter, &self.online) {
-            (Some(f), _) => f.belief(),
-            (None, OnlinePredictor::Hmm(r)) => r.belief(),
-            (None, OnlinePredictor::Gated { base, .. }) => base.belief(),
-            (None, OnlinePredictor::Gmm { weights, .. }) => weights,
+        match &self.online {
+            OnlinePredictor::Hmm(r) => r.belief(),
+            OnlinePredictor::Gated { base, .. } => base.belief(),
+            OnlinePredictor::Gmm { weights, .. } => weights,
         }
     }
 

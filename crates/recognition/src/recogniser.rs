@@ -6,7 +6,9 @@
 //! normalisers are the predictive likelihoods, so after `t` frames
 //!
 //! `p(a | o¹_{1:t}) = p(a) exp ℓ_a(t) / Σ_b p(b) exp ℓ_b(t)`, with
-//! `ℓ_a(t) = log p(o¹_{1:t} | λ_a) = Σ_{τ ≤ t} log c^a_τ` ([`action_posterior`]).
+//! `ℓ_a(t) = log p(o¹_{1:t} | λ_a) = Σ_{s ≤ t} log c^a_s` ([`action_posterior`]);
+//! the library may temper it, `ℓ_a / τ` in place of `ℓ_a`
+//! ([`crate::library::Calibration::temperature`]; `τ = 1` by default).
 //!
 //! The decision is the most probable action, or *unknown* while the
 //! [`Rejection`] test rejects the motion. The robot's prediction is the most
@@ -19,8 +21,8 @@
 //!
 //! For continuous streams, `#reset`-style resets start every filter again;
 //! [`AutoReset`] does it when the decided action's filter believes its
-//! interaction has ended (mass on its end states, the states where its training
-//! demonstrations ended). No allocation per frame.
+//! interaction has ended: its belief has left its end states (the states where
+//! its training demonstrations ended) and come back to them. No allocation per frame.
 
 use crate::error::{check_frame, RecognitionError, Result};
 use crate::library::Library;
@@ -72,7 +74,10 @@ impl PredictionMode {
     }
 }
 
-/// Automatic resets for continuous streams.
+/// Automatic resets for continuous streams: every filter starts again after a
+/// frame where the decided action's belief on its end states reaches
+/// `end_probability`, having been below it since the last reset, at least
+/// `min_frames` frames after the last reset.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct AutoReset {
     /// Reset when the decided action's belief on its end states reaches this.
@@ -191,6 +196,8 @@ pub struct Recogniser {
     alive: Vec<bool>,
     failed: Vec<bool>,
     log_likelihood: Vec<f64>,
+    scaled: Vec<f64>,
+    temperature: f64,
     posterior: Vec<f64>,
     threshold: Option<ForwardFilter<Gaussian>>,
     threshold_dead: bool,
@@ -210,6 +217,10 @@ pub struct Recogniser {
     statistics: (f64, f64),
     frames: usize,
     pending_reset: bool,
+    /// The decided action's belief has left its end states since the last reset.
+    moved: bool,
+    /// Human values observed (not NaN) since the last reset.
+    observed: usize,
 }
 
 impl Recogniser {
@@ -222,6 +233,7 @@ impl Recogniser {
         let missing = match settings.rejection {
             Rejection::LikelihoodPerFrame => limits.0.is_none(),
             Rejection::ThresholdModel => limits.1.is_none(),
+            Rejection::Either => limits.0.is_none() || limits.1.is_none(),
             Rejection::Off => false,
         };
         if missing {
@@ -248,7 +260,13 @@ impl Recogniser {
             .actions()
             .iter()
             .map(|a| {
-                ActionTrack::new(&a.model, roles, settings.with_covariance).map_err(|e| match e {
+                ActionTrack::new(
+                    &a.model,
+                    a.recognition.as_ref(),
+                    roles,
+                    settings.with_covariance,
+                )
+                .map_err(|e| match e {
                     RecognitionError::Tsc(source) => RecognitionError::Action {
                         action: a.name.clone(),
                         source,
@@ -257,8 +275,10 @@ impl Recogniser {
                 })
             })
             .collect::<Result<Vec<_>>>()?;
-        let threshold = (settings.rejection == Rejection::ThresholdModel
-            || settings.both_statistics)
+        let threshold = (matches!(
+            settings.rejection,
+            Rejection::ThresholdModel | Rejection::Either
+        ) || settings.both_statistics)
             .then(|| library.threshold_model().map(|h| h.filter()))
             .transpose()?;
         let (a, o, d) = (library.len(), roles.robot.len(), library.dim());
@@ -286,6 +306,8 @@ impl Recogniser {
             alive: vec![true; a],
             failed: vec![false; a],
             log_likelihood: vec![0.0; a],
+            scaled: vec![0.0; a],
+            temperature: cal.temperature,
             posterior: vec![0.0; a],
             threshold,
             threshold_dead: false,
@@ -305,6 +327,8 @@ impl Recogniser {
             statistics: (f64::NAN, f64::NAN),
             frames: 0,
             pending_reset: false,
+            moved: false,
+            observed: 0,
         };
         r.reset();
         Ok(r)
@@ -354,24 +378,33 @@ impl Recogniser {
                 self.covariances[a * o * o..(a + 1) * o * o].copy_from_slice(track.covariance());
             }
         }
-        action_posterior(&self.log_prior, &self.log_likelihood, &mut self.posterior);
+        // p(a | o) ∝ p(a) exp(ℓ_a / τ).
+        for (s, l) in self.scaled.iter_mut().zip(&self.log_likelihood) {
+            *s = l / self.temperature;
+        }
+        action_posterior(&self.log_prior, &self.scaled, &mut self.posterior);
         let best = argmax(&self.posterior);
         let top = self
             .log_likelihood
             .iter()
             .copied()
             .fold(f64::NEG_INFINITY, f64::max);
-        let t = self.frames as f64;
+        self.observed += human.iter().filter(|v| !v.is_nan()).count();
+        let n = self.observed as f64 / self.n_human as f64;
         let versus = match &self.threshold {
             None => f64::NAN,
             Some(_) if self.threshold_dead => f64::INFINITY,
             Some(f) => top - f.log_likelihood(),
         };
-        self.statistics = (top / t, versus);
+        // Nothing observed yet: no evidence either way.
+        self.statistics = (if n > 0.0 { top / n } else { f64::NAN }, versus);
+        let by_likelihood = self.limits.0.is_some_and(|l| self.statistics.0 < l);
+        let by_threshold_model = self.limits.1.is_some_and(|l| self.statistics.1 < l);
         self.rejected = match self.settings.rejection {
             Rejection::Off => false,
-            Rejection::LikelihoodPerFrame => self.limits.0.is_some_and(|l| self.statistics.0 < l),
-            Rejection::ThresholdModel => self.limits.1.is_some_and(|l| self.statistics.1 < l),
+            Rejection::LikelihoodPerFrame => by_likelihood,
+            Rejection::ThresholdModel => by_threshold_model,
+            Rejection::Either => by_likelihood || by_threshold_model,
         };
         self.decision = if self.rejected {
             Decision::Unknown
@@ -384,7 +417,12 @@ impl Recogniser {
                 .iter()
                 .map(|&i| self.tracks[best].belief()[i])
                 .sum();
-            self.pending_reset = self.frames >= r.min_frames && mass >= r.end_probability;
+            // An interaction ends when the belief comes back to the end states
+            // after it has left them (a model whose demonstrations start and
+            // end at rest has one state for both: being there is not enough).
+            self.moved |= mass < r.end_probability;
+            self.pending_reset =
+                self.moved && self.frames >= r.min_frames && mass >= r.end_probability;
         }
         Ok(self.decision)
     }
@@ -436,6 +474,8 @@ impl Recogniser {
         self.statistics = (f64::NAN, f64::NAN);
         self.frames = 0;
         self.pending_reset = false;
+        self.moved = false;
+        self.observed = 0;
     }
 
     /// The decision after the last frame.

@@ -14,7 +14,7 @@
 //!   while the log-likelihood ratio `max_a ℓ_a(t) − ℓ_T(t)` is below a
 //!   threshold (Lee & Kim: 0).
 //!
-//! They catch different unknowns: a motion that goes where no known action
+//! [`Rejection::Either`] rejects while either test does. They catch different unknowns: a motion that goes where no known action
 //! goes is explained badly by every state, the threshold model's too, so only
 //! the likelihood per frame rejects it; known poses in an order no action
 //! follows are explained well frame by frame, so only the threshold model
@@ -35,14 +35,17 @@ pub enum Rejection {
     LikelihoodPerFrame,
     /// The threshold-model test.
     ThresholdModel,
+    /// Either test (a motion is rejected while one of them rejects it).
+    Either,
 }
 
 impl Rejection {
     /// Every test, `Off` first.
-    pub const ALL: [Rejection; 3] = [
+    pub const ALL: [Rejection; 4] = [
         Rejection::Off,
         Rejection::LikelihoodPerFrame,
         Rejection::ThresholdModel,
+        Rejection::Either,
     ];
 
     /// Its name on the command line and in reports.
@@ -51,6 +54,7 @@ impl Rejection {
             Rejection::Off => "off",
             Rejection::LikelihoodPerFrame => "likelihood-per-frame",
             Rejection::ThresholdModel => "threshold-model",
+            Rejection::Either => "either",
         }
     }
 
@@ -62,7 +66,7 @@ impl Rejection {
             .ok_or_else(|| RecognitionError::InvalidSetting {
                 name: "rejection",
                 reason: format!(
-                    "`{s}` is not a rejection test (off, likelihood-per-frame, threshold-model)"
+                    "`{s}` is not a rejection test (off, likelihood-per-frame, threshold-model, either)"
                 ),
             })
     }

@@ -3,7 +3,8 @@
 use phasekit_emission::Gaussian;
 use phasekit_hmm::Hmm;
 use phasekit_recognition::metrics::{
-    correct_from_first_third, frames_observed, median_or_never, settled_frame, Confusion,
+    correct_from_first_third, frames_observed, held_frame, median_or_never, settled_frame,
+    Confusion,
 };
 use phasekit_recognition::rejection::quantile;
 use phasekit_recognition::{action_posterior, mix_predictions, threshold_hmm, Decision};
@@ -83,6 +84,21 @@ proptest! {
             prop_assert_eq!(settled_frame(&decisions, truth), brute);
             let third = (decisions.len() as f64 / 3.0).ceil() as usize - 1;
             prop_assert_eq!(correct_from_first_third(&decisions, truth), brute.is_some_and(|s| s <= third));
+        }
+    }
+
+    /// The first frame of a right run of `hold` frames (or to the end), against its definition.
+    #[test]
+    fn held_frame_is_the_first_long_enough_run(d in prop::collection::vec(0usize..3, 1..40), hold in 1usize..6) {
+        let decisions: Vec<Decision> = d.iter().map(|&x| Decision::Action(x)).collect();
+        let n = decisions.len();
+        for truth in 0..3 {
+            let right = |t: usize| decisions[t] == Decision::Action(truth);
+            let brute = (0..n).find(|&t| {
+                let end = (t + hold).min(n);
+                (t..end).all(right) && (end - t == hold || end == n)
+            });
+            prop_assert_eq!(held_frame(&decisions, truth, hold), brute);
         }
     }
 

@@ -467,11 +467,17 @@ fn bad_inputs_give_clear_errors() {
     let roles = roles();
     let s = LibrarySettings::default();
     // One action.
-    let e = Library::fit(&[("handshake", &data[0].1, &m)], &roles, &s).unwrap_err();
+    let e = Library::fit(&[("handshake", &data[0].1, &m)], None, &roles, &s).unwrap_err();
     assert!(e.to_string().contains("at least 2 actions"), "{e}");
     assert!(e.to_string().contains("handshake"), "{e}");
     // Two actions of one name.
-    let e = Library::fit(&[("a", &data[0].1, &m), ("a", &data[1].1, &m)], &roles, &s).unwrap_err();
+    let e = Library::fit(
+        &[("a", &data[0].1, &m), ("a", &data[1].1, &m)],
+        None,
+        &roles,
+        &s,
+    )
+    .unwrap_err();
     assert!(e.to_string().contains("two actions are named `a`"), "{e}");
     // Actions whose features differ.
     let narrow: Vec<Vec<f64>> = demos(Kind::Wave, 3, 1)
@@ -485,6 +491,7 @@ fn bad_inputs_give_clear_errors() {
     let narrow = SequenceSet::new(&narrow, 11).unwrap();
     let e = Library::fit(
         &[("handshake", &data[0].1, &m), ("wave", &narrow, &m)],
+        None,
         &roles,
         &s,
     )
@@ -535,6 +542,7 @@ fn bad_inputs_give_clear_errors() {
     bad.rest_stay = 0.5;
     let e = Library::fit(
         &[("a", &data[0].1, &m), ("b", &data[1].1, &m)],
+        None,
         &roles,
         &bad,
     )
@@ -549,4 +557,144 @@ fn calibration_holds_out_demonstrations() {
     assert_eq!(c.demonstrations, 40);
     assert_eq!(c.failed_folds, 0);
     assert!(c.likelihood_per_frame.is_some() && c.threshold_model.is_some());
+}
+
+#[test]
+fn a_second_model_can_recognise_while_the_first_predicts() {
+    use phasekit_recognition::parts::action_hmm;
+    let data = common::training(&[Kind::Handshake, Kind::Wave]);
+    let predict = common::hmm();
+    let recognise = Method::preset(
+        "hmm",
+        &PresetOptions {
+            states: 6,
+            reg: 1e-3,
+            ..PresetOptions::default()
+        },
+    )
+    .unwrap();
+    let actions: Vec<(&str, &SequenceSet, &Method)> = data
+        .iter()
+        .map(|(n, d)| (n.as_str(), d, &predict))
+        .collect();
+    let (lib, _) = Library::fit(
+        &actions,
+        Some(&recognise),
+        &roles(),
+        &LibrarySettings::default(),
+    )
+    .unwrap();
+    let mut r = Recogniser::new(&lib, settings(Rejection::Off, PredictionMode::Mixture)).unwrap();
+    let h = human(&demos(Kind::Wave, 1, 21)[0]);
+    for (t, x) in h.chunks_exact(6).enumerate() {
+        r.step(x).unwrap();
+        if t % 20 != 0 {
+            continue;
+        }
+        for (a, action) in lib.actions().iter().enumerate() {
+            let rec = action.recognition.as_ref().expect("a recognition model");
+            assert_eq!(action_hmm(rec).unwrap().n_states(), 6);
+            let ll = action_hmm(rec)
+                .unwrap()
+                .marginal(&lib.roles().human)
+                .unwrap()
+                .log_likelihood(Frames::new(&h[..(t + 1) * 6], 6).unwrap())
+                .unwrap();
+            assert!((r.log_likelihoods()[a] - ll).abs() <= 1e-9 * ll.abs().max(1.0));
+            let batch = action
+                .model
+                .predictor(lib.roles())
+                .unwrap()
+                .predict(Frames::new(&h[..(t + 1) * 6], 6).unwrap(), false)
+                .unwrap();
+            assert_eq!(r.action_robot(a), &batch.mean[t * 6..(t + 1) * 6]);
+        }
+    }
+    assert_eq!(r.decision(), Decision::Action(1));
+}
+
+#[test]
+fn the_temperature_divides_the_evidence_and_can_be_chosen_on_held_out_demonstrations() {
+    let base = library();
+    let mut p: LibraryParams = base.clone().into();
+    p.calibration.temperature = 4.0;
+    let hot = Library::try_from(p).unwrap();
+    let s = settings(Rejection::Off, PredictionMode::Mixture);
+    let (mut r1, mut r4) = (
+        Recogniser::new(base, s.clone()).unwrap(),
+        Recogniser::new(&hot, s).unwrap(),
+    );
+    for x in human(&demos(Kind::Handshake, 1, 23)[0])
+        .chunks_exact(6)
+        .take(40)
+    {
+        assert_eq!(
+            r1.step(x).unwrap(),
+            r4.step(x).unwrap(),
+            "uniform prior: same decision"
+        );
+        let ll = r1.log_likelihoods();
+        let top = ll.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        let z: f64 = ll.iter().map(|l| ((l - top) / 4.0).exp()).sum();
+        for (q, l) in r4.posterior().iter().zip(ll) {
+            assert!((q - ((l - top) / 4.0).exp() / z).abs() < 1e-12);
+        }
+        // The mixture weights are the tempered posterior.
+        let mut m = vec![0.0; 6];
+        for (a, w) in r4.posterior().iter().enumerate() {
+            m.iter_mut()
+                .zip(r4.action_robot(a))
+                .for_each(|(m, v)| *m += w * v);
+        }
+        for (x, y) in m.iter().zip(r4.robot()) {
+            assert!((x - y).abs() < 1e-12);
+        }
+    }
+    // Chosen on held-out demonstrations: one of the grid, with the best log score.
+    let data = common::training(&[Kind::Handshake, Kind::FistBump]);
+    let m = common::hmm();
+    let actions: Vec<(&str, &SequenceSet, &Method)> =
+        data.iter().map(|(n, d)| (n.as_str(), d, &m)).collect();
+    let mut auto = LibrarySettings::default();
+    auto.temperature = None;
+    let (lib, _) = Library::fit(&actions, None, &roles(), &auto).unwrap();
+    let c = lib.calibration();
+    assert!(phasekit_recognition::library::TEMPERATURES.contains(&c.temperature));
+    for t in phasekit_recognition::library::TEMPERATURES {
+        let mut fixed = LibrarySettings::default();
+        fixed.temperature = Some(t);
+        let (other, _) = Library::fit(&actions, None, &roles(), &fixed).unwrap();
+        assert!(
+            other.calibration().log_score <= c.log_score + 1e-12,
+            "τ = {t}"
+        );
+    }
+    let mut bad = LibrarySettings::default();
+    bad.temperature = Some(0.5);
+    assert!(Library::fit(&actions, None, &roles(), &bad)
+        .unwrap_err()
+        .to_string()
+        .contains("temperature"));
+}
+
+#[test]
+fn either_test_rejects_what_one_of_them_rejects() {
+    let lib = library_without_wave();
+    let mut s = settings(Rejection::Either, PredictionMode::Mixture);
+    s.both_statistics = true;
+    let mut r = Recogniser::new(lib, s).unwrap();
+    let c = lib.calibration();
+    for joint in demos(Kind::Wave, 2, 31)
+        .iter()
+        .chain(&demos(Kind::Handover, 2, 31))
+    {
+        r.reset();
+        for x in human(joint).chunks_exact(6) {
+            r.step(x).unwrap();
+            let (pf, tm) = r.statistics();
+            let expected = pf < c.likelihood_per_frame.unwrap() || tm < c.threshold_model.unwrap();
+            assert_eq!(r.rejected(), expected);
+            assert_eq!(r.decision() == Decision::Unknown, expected);
+        }
+    }
 }

@@ -56,7 +56,7 @@ pub fn fit(kinds: &[Kind], method: &Method) -> Library {
     let data = training(kinds);
     let actions: Vec<(&str, &SequenceSet, &Method)> =
         data.iter().map(|(n, d)| (n.as_str(), d, method)).collect();
-    Library::fit(&actions, &roles(), &LibrarySettings::default())
+    Library::fit(&actions, None, &roles(), &LibrarySettings::default())
         .unwrap()
         .0
 }
