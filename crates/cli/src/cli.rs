@@ -350,7 +350,8 @@ pub struct StreamArgs {
     /// Do not report latency at exit
     #[arg(short, long)]
     pub quiet: bool,
-    /// With a library: per-action (one filter per action, reset when an interaction ends) or composed (one HMM)
+    /// With a library: composed (one HMM with a rest state; the default) or per-action (one filter per action,
+    /// reset when an interaction ends, unknown motions rejected)
     #[arg(long, value_enum, value_name = "HOW")]
     pub recogniser: Option<crate::commands::recognise::StreamMode>,
 }

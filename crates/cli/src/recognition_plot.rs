@@ -171,6 +171,8 @@ pub fn accuracy_svg(r: &Report) -> Result<String> {
                 .light_line_style(BLACK.mix(0.06))
                 .x_desc("observed (% of the demonstration)")
                 .y_desc("accuracy (% of test demonstrations)")
+                .x_label_formatter(&|x| format!("{x:.0}"))
+                .y_label_formatter(&|y| format!("{y:.0}"))
                 .draw()
                 .map_err(draw_err)?;
             let groups: Vec<String> = r

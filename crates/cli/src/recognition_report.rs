@@ -49,9 +49,10 @@ pub fn check_prediction_task(a: &EvaluateArgs) -> Result<()> {
         || l.calibration_folds != d.calibration_folds
         || l.calibration_quantile != d.calibration_quantile
         || l.recognition_method.is_some()
+        || !l.action_method.is_empty()
         || l.temperature != crate::commands::recognise::TemperatureArg::Fixed(1.0)
     {
-        bail!("--prior, --rest-frames, --calibration-*, --recognition-method and --temperature set up a library of interactions: they need --task recognition");
+        bail!("--prior, --rest-frames, --calibration-*, --recognition-method, --temperature and --action-method set up a library of interactions: they need --task recognition");
     }
     Ok(())
 }
@@ -216,6 +217,16 @@ pub fn run(a: &EvaluateArgs) -> Result<()> {
         .library_settings
         .recognition(&options)?
         .map(|n| (n.label, n.method));
+    settings.action_methods = a.library_settings.action_methods(&options)?;
+    for (name, label, m) in &settings.action_methods {
+        let Some(action) = actions.iter().find(|x| &x.name == name) else {
+            bail!(
+                "--action-method: no action `{name}` in {}",
+                a.data.display()
+            );
+        };
+        crate::commands::check_lengths(&action.train, m, label)?;
+    }
     if let Some((label, m)) = &settings.recognition {
         for action in &actions {
             crate::commands::check_lengths(&action.train, m, label)?;
@@ -489,6 +500,9 @@ pub fn markdown(j: &RecognitionJson) -> String {
             r.failures[0].2
         ));
     }
+    for (action, label, _) in &r.settings.action_methods {
+        s.push_str(&format!("\nAction `{action}` is fitted with `{label}` whatever the method (it predicts and recognises it).\n"));
+    }
     if let Some((label, _)) = &r.settings.recognition {
         s.push_str(&format!("\nRecognition by a second model per action, `{label}` (its likelihood decides; each method still predicts).\n"));
     }
@@ -525,4 +539,19 @@ pub fn csv(r: &Report) -> String {
         ));
     }
     s
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn recognition_draws_the_prediction_experiments_subsets() {
+        for seed in 0..20 {
+            for (n, size) in [(8, 6), (9, 7), (7, 5), (3, 5)] {
+                assert_eq!(
+                    phasekit_recognition::experiment::subset(seed, n, size),
+                    crate::experiment::subset(seed, n, size)
+                );
+            }
+        }
+    }
 }

@@ -131,7 +131,7 @@ fn fit_a_library_recognise_and_stream() {
     input.extend(human_lines(&wave));
     input.insert(20, "1,2".into());
     let assert = phasekit()
-        .args(["stream", "--quiet", "--model"])
+        .args(["stream", "--quiet", "--recogniser", "per-action", "--model"])
         .arg(&lib)
         .write_stdin(input.join("\n") + "\n")
         .assert()
@@ -158,16 +158,9 @@ fn fit_a_library_recognise_and_stream() {
         rows[rows.len() / 2]
     );
     assert!(rows.iter().filter(|r| r.contains(",wave,")).count() > rows.len() / 2);
-    // The composed HMM in the stream adds p_rest.
+    // The composed HMM (the default with a library) adds p_rest.
     phasekit()
-        .args([
-            "stream",
-            "--quiet",
-            "--recogniser",
-            "composed",
-            "--no-header",
-            "--model",
-        ])
+        .args(["stream", "--quiet", "--no-header", "--model"])
         .arg(&lib)
         .write_stdin(human_lines(&wave)[..30].join("\n") + "\n")
         .assert()

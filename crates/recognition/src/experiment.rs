@@ -94,6 +94,9 @@ pub struct ExperimentSettings {
     /// A method (label, settings) whose models recognise the actions for every
     /// method evaluated (which still predicts); `None`: each method recognises itself.
     pub recognition: Option<(String, Method)>,
+    /// Actions fitted with their own method (action name, label, method) in
+    /// place of the method evaluated, for prediction and recognition alike.
+    pub action_methods: Vec<(String, String, Method)>,
     /// A stream's decision settles on an interaction when it is right for this
     /// many frames in a row (or to the interaction's end).
     pub stream_hold_frames: usize,
@@ -113,6 +116,7 @@ impl Default for ExperimentSettings {
             frame_rate: 30.0,
             auto_reset: AutoReset::default(),
             recognition: None,
+            action_methods: Vec::new(),
             stream_hold_frames: 30,
         }
     }
@@ -439,12 +443,13 @@ fn human_of(ds: &Dataset, joint: &[f64]) -> Vec<f64> {
 }
 
 fn settings_for(both: bool, auto_reset: Option<AutoReset>) -> RecogniserSettings {
-    let mut s = RecogniserSettings::default();
-    s.rejection = Rejection::Off;
-    s.prediction = PredictionMode::Mixture;
-    s.both_statistics = both;
-    s.auto_reset = auto_reset;
-    s
+    RecogniserSettings {
+        rejection: Rejection::Off,
+        prediction: PredictionMode::Mixture,
+        both_statistics: both,
+        auto_reset,
+        ..RecogniserSettings::default()
+    }
 }
 
 /// Whether the statistics reject under the library's thresholds: likelihood
@@ -516,10 +521,11 @@ fn run_seed(
         .map(|(a, train)| {
             let train: Vec<Vec<f64>> = train.iter().map(|q| sc.apply(q)).collect();
             let set = SequenceSet::new(&train, d)?;
+            let own = s.action_methods.iter().find(|m| m.0 == a.name);
             FittedAction::fit(
                 &a.name,
                 &set,
-                method,
+                own.map_or(method, |m| &m.2),
                 s.recognition.as_ref().map(|r| &r.1),
                 &ds.roles,
                 &s.library,

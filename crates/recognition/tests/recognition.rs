@@ -458,6 +458,20 @@ fn missing_values_are_recognised_on_what_is_observed() {
         assert!(r.robot().iter().all(|v| v.is_finite()));
     }
     assert_eq!(r.decision(), Decision::Action(2));
+    // The likelihood per frame counts the frames' worth of observed values:
+    // missing values do not make a known motion look unknown.
+    let mut s = settings(Rejection::LikelihoodPerFrame, PredictionMode::Mixture);
+    s.both_statistics = true;
+    let mut rejecting = Recogniser::new(lib, s).unwrap();
+    let d = run_frames(&mut rejecting, &h);
+    assert_eq!(*d.last().unwrap(), Decision::Action(2));
+    assert!(d[40..].iter().all(|x| *x != Decision::Unknown));
+}
+
+/// Decisions on every human frame, from a fresh start.
+fn run_frames(r: &mut Recogniser, human: &[f64]) -> Vec<Decision> {
+    r.reset();
+    human.chunks_exact(6).map(|x| r.step(x).unwrap()).collect()
 }
 
 #[test]

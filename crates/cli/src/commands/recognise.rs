@@ -65,6 +65,10 @@ pub struct LibraryArgs {
     /// log score on the held-out demonstrations)
     #[arg(long, value_name = "X|auto", default_value = "1")]
     pub temperature: TemperatureArg,
+    /// Library: fit this action with its own method, ACTION=NAME[:key=value,...] (repeatable;
+    /// the others use --method)
+    #[arg(long, value_name = "ACTION=NAME")]
+    pub action_method: Vec<String>,
 }
 
 /// `--temperature` values.
@@ -90,6 +94,26 @@ impl std::str::FromStr for TemperatureArg {
 }
 
 impl LibraryArgs {
+    /// The per-action methods, `(action, label, method)`.
+    pub fn action_methods(
+        &self,
+        options: &phasekit_tsc::PresetOptions,
+    ) -> Result<Vec<(String, String, Method)>> {
+        self.action_method
+            .iter()
+            .map(|spec| {
+                let (action, m) = spec.split_once('=').ok_or_else(|| {
+                    CliError::new(format!(
+                        "--action-method {spec}: expected ACTION=NAME[:key=value,...]"
+                    ))
+                })?;
+                let named = parse_method(m, options)
+                    .map_err(|e| CliError::new(format!("--action-method {spec}: {e}")))?;
+                Ok((action.trim().to_string(), named.label, named.method))
+            })
+            .collect()
+    }
+
     /// The recognition method, parsed on top of the command line's options.
     pub fn recognition(
         &self,
@@ -343,7 +367,14 @@ pub fn fit_library(a: &FitArgs, settings: &LibraryArgs) -> Result<()> {
     }
     // Every action's training features, on one layout.
     let mut layout = None;
-    let mut per_action: Vec<(String, Vec<PathBuf>, usize, Vec<Vec<f64>>)> = Vec::new();
+    // Per action: name, training files, frames, features.
+    struct Training {
+        name: String,
+        files: Vec<PathBuf>,
+        frames: usize,
+        seqs: Vec<Vec<f64>>,
+    }
+    let mut per_action: Vec<Training> = Vec::new();
     for d in &dirs {
         let name = name_of(d);
         let files = fit_files(std::slice::from_ref(d), None)?;
@@ -360,39 +391,64 @@ pub fn fit_library(a: &FitArgs, settings: &LibraryArgs) -> Result<()> {
             Some(_) => {}
         }
         let frames = tables.iter().map(Table::n_rows).sum();
-        per_action.push((name, files, frames, seqs));
+        per_action.push(Training {
+            name,
+            files,
+            frames,
+            seqs,
+        });
     }
     let (_, layout) = layout.ok_or_else(|| CliError::new("no action to fit"))?;
     let dim = layout.features.len();
     let standardisation = a.model.standardise.then(|| {
-        let all: Vec<&Vec<f64>> = per_action.iter().flat_map(|p| &p.3).collect();
+        let all: Vec<&Vec<f64>> = per_action.iter().flat_map(|p| &p.seqs).collect();
         Standardisation::fit(&all, dim)
     });
     if let Some(s) = &standardisation {
         let all: Vec<usize> = (0..dim).collect();
         per_action
             .iter_mut()
-            .flat_map(|p| p.3.iter_mut())
+            .flat_map(|p| p.seqs.iter_mut())
             .for_each(|q| s.apply(q, &all));
     }
     let sets = per_action
         .iter()
-        .map(|p| SequenceSet::new(&p.3, dim))
+        .map(|p| SequenceSet::new(&p.seqs, dim))
         .collect::<std::result::Result<Vec<_>, _>>()?;
     let roles = Roles {
         human: layout.human.clone(),
         robot: layout.robot.clone(),
     };
-    let frames: usize = per_action.iter().map(|p| p.2).sum();
+    let frames: usize = per_action.iter().map(|p| p.frames).sum();
     let bar = output::spinner(&format!(
         "fitting {} to {} actions ({frames} frames)",
         named.label,
         per_action.len()
     ));
+    let own = settings.action_methods(&options)?;
+    for (a, _, _) in &own {
+        if !per_action.iter().any(|p| &p.name == a) {
+            bail!(
+                "--action-method: no action `{a}` in {} (actions: {})",
+                dir.display(),
+                per_action
+                    .iter()
+                    .map(|p| p.name.as_str())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            );
+        }
+    }
     let actions: Vec<(&str, &SequenceSet, &Method)> = per_action
         .iter()
         .zip(&sets)
-        .map(|(p, s)| (p.0.as_str(), s, &named.method))
+        .map(|(p, s)| {
+            let m = own
+                .iter()
+                .find(|o| o.0 == p.name)
+                .map_or(&named.method, |o| &o.2);
+            (p.name.as_str(), s, m)
+        })
         .collect();
     let recognition = settings.recognition(&options)?;
     if let Some(r) = &recognition {
@@ -417,10 +473,10 @@ pub fn fit_library(a: &FitArgs, settings: &LibraryArgs) -> Result<()> {
     let infos: Vec<ActionInfo> = per_action
         .into_iter()
         .zip(summaries)
-        .map(|((name, files, frames, _), fit)| ActionInfo {
-            name,
-            demonstrations: files,
-            frames,
+        .map(|(p, fit)| ActionInfo {
+            name: p.name,
+            demonstrations: p.files,
+            frames: p.frames,
             fit,
         })
         .collect();
@@ -847,10 +903,12 @@ impl StreamTarget {
                 if mode.is_some() {
                     bail!("--recogniser needs a library (made by `fit --library`), not a single model");
                 }
-                Ok(Streamer::Model(StreamPredictor::new(m)?, m))
+                Ok(Streamer::Model(Box::new(StreamPredictor::new(m)?), m))
             }
             StreamTarget::Library(l) => {
-                let composed = mode == Some(StreamMode::Composed);
+                // The composed HMM by default: it did better on continuous
+                // streams (README, "Which interaction?").
+                let composed = mode != Some(StreamMode::PerAction);
                 let mut s = RecogniserSettings::default();
                 s.with_covariance = with_covariance;
                 s.auto_reset = Some(AutoReset::default());
@@ -877,7 +935,7 @@ impl StreamTarget {
 /// Frame-by-frame prediction (a single model) or recognition (a library).
 pub enum Streamer<'a> {
     /// A single model's predictor.
-    Model(StreamPredictor<'a>, &'a ModelFile),
+    Model(Box<StreamPredictor<'a>>, &'a ModelFile),
     /// A library's recogniser.
     Library(Box<LibraryStream<'a>>),
 }
