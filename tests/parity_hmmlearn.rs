@@ -637,3 +637,158 @@ fn every_fixture_case_is_tested() {
         .unwrap()
         .contains("hmmlearn 0.3.3"));
 }
+
+// ---------------------------------------------------------------------------
+// GMMHMM over several Baum-Welch steps (tests/fixtures/hmmlearn_gmmhmm_cases.json)
+// ---------------------------------------------------------------------------
+
+const GMMHMM_FIXTURE: &str = concat!(
+    env!("CARGO_MANIFEST_DIR"),
+    "/tests/fixtures/hmmlearn_gmmhmm_cases.json"
+);
+
+fn gmmhmm_fixture() -> &'static Value {
+    static F: OnceLock<Value> = OnceLock::new();
+    F.get_or_init(|| {
+        let text = std::fs::read_to_string(GMMHMM_FIXTURE).expect("read GMMHMM fixture");
+        serde_json::from_str(&text).expect("parse GMMHMM fixture")
+    })
+}
+
+/// A GMM-HMM from `{startprob, transmat, weights, means, covars}`.
+fn gmm_hmm_from(c: &Value, params: &Value) -> Hmm<MixtureEmission<Gaussian>> {
+    hmm_from(params, mixture_from(c, params))
+}
+
+fn gmm_params(hmm: &Hmm<MixtureEmission<Gaussian>>) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
+    let e = hmm.emission();
+    let s = hmm.n_states();
+    let means = (0..s)
+        .flat_map(|i| e.components(i).means().to_vec())
+        .collect();
+    let covs = (0..s)
+        .flat_map(|i| e.components(i).covariances_raw().to_vec())
+        .collect();
+    (e.weights().to_vec(), means, covs)
+}
+
+/// Several Baum-Welch steps of a GMM-HMM, two ways:
+/// * from the same start, our run of `n_steps` steps against the pure-ML
+///   trajectory (NumPy, whose every step the generator checked against
+///   hmmlearn's), at every step: parameters and log-likelihood;
+/// * every one of hmmlearn's steps: our one step from hmmlearn's parameters
+///   after step `k` against hmmlearn's after step `k + 1` (start,
+///   transitions, weights, means equal; covariances equal once hmmlearn's
+///   old-mean shift `(μ_new − μ_old)(μ_new − μ_old)ᵀ` is added to ours), and
+///   the log-likelihood hmmlearn reported before each step.
+fn check_gmmhmm_steps(c: &Value) {
+    let name = c["name"].as_str().unwrap();
+    let (seqs, dim) = sequences(c);
+    let data = SequenceSet::new(&seqs, dim).unwrap();
+    let (s, m, d) = (
+        usize_of(&c["n_states"]),
+        usize_of(&c["n_mix"]),
+        usize_of(&c["n_features"]),
+    );
+    let n_steps = usize_of(&c["n_steps"]);
+    let mut chk = Checker::new(name);
+    let one_step = BaumWelch::builder()
+        .max_iter(1)
+        .tol(f64::NEG_INFINITY)
+        .regularisation(Regularisation::none())
+        .build()
+        .unwrap();
+
+    // Our trajectory against the ML one.
+    let mut hmm = gmm_hmm_from(c, &c["initial"]);
+    for k in 0..n_steps {
+        let fit = one_step.fit_from(hmm, &data).unwrap();
+        let want = &c["ml_trajectory"][k];
+        chk.log_value(
+            &format!("ml step {k}: log-likelihood before"),
+            fit.report.log_likelihood[0],
+            c["ml_log_likelihood_before_step"][k].as_f64().unwrap(),
+        );
+        hmm = fit.model;
+        let (w, mu, cov) = gmm_params(&hmm);
+        chk.default(
+            &format!("ml step {k}: startprob"),
+            hmm.start(),
+            &want["startprob"],
+        );
+        chk.default(
+            &format!("ml step {k}: transmat"),
+            hmm.transition(),
+            &want["transmat"],
+        );
+        chk.default(&format!("ml step {k}: weights"), &w, &want["weights"]);
+        chk.default(&format!("ml step {k}: means"), &mu, &want["means"]);
+        chk.default(&format!("ml step {k}: covars"), &cov, &want["covars"]);
+    }
+
+    // Every step of hmmlearn's run.
+    let trajectory = c["hmmlearn_trajectory"].as_array().unwrap();
+    assert_eq!(trajectory.len(), n_steps);
+    for k in 0..n_steps {
+        let before = if k == 0 {
+            &c["initial"]
+        } else {
+            &trajectory[k - 1]
+        };
+        let start = gmm_hmm_from(c, before);
+        let fit = one_step.fit_from(start, &data).unwrap();
+        chk.log_value(
+            &format!("hmmlearn step {k}: log-likelihood before"),
+            fit.report.log_likelihood[0],
+            c["hmmlearn_log_likelihood_before_step"][k]
+                .as_f64()
+                .unwrap(),
+        );
+        let want = &trajectory[k];
+        let (w, mu, cov) = gmm_params(&fit.model);
+        chk.default(
+            &format!("hmmlearn step {k}: startprob"),
+            fit.model.start(),
+            &want["startprob"],
+        );
+        chk.default(
+            &format!("hmmlearn step {k}: transmat"),
+            fit.model.transition(),
+            &want["transmat"],
+        );
+        chk.default(&format!("hmmlearn step {k}: weights"), &w, &want["weights"]);
+        chk.default(&format!("hmmlearn step {k}: means"), &mu, &want["means"]);
+        let old = flat(&before["means"]);
+        let mut shifted = cov.clone();
+        for j in 0..s * m {
+            for r in 0..d {
+                for q in 0..d {
+                    shifted[j * d * d + r * d + q] +=
+                        (mu[j * d + r] - old[j * d + r]) * (mu[j * d + q] - old[j * d + q]);
+                }
+            }
+        }
+        chk.default(
+            &format!("hmmlearn step {k}: covars (ours + old-mean shift)"),
+            &shifted,
+            &want["covars"],
+        );
+    }
+    // The score of hmmlearn's final model.
+    let last = gmm_hmm_from(c, &trajectory[n_steps - 1]);
+    chk.log_value(
+        "hmmlearn final log-likelihood",
+        last.log_likelihood_all(&data).unwrap(),
+        c["hmmlearn_log_likelihood_final"].as_f64().unwrap(),
+    );
+    chk.finish();
+}
+
+#[test]
+fn gmmhmm_several_steps() {
+    let cases = gmmhmm_fixture()["cases"].as_array().unwrap();
+    assert_eq!(cases.len(), 2);
+    for c in cases {
+        check_gmmhmm_steps(c);
+    }
+}

@@ -5,11 +5,11 @@ use std::path::PathBuf;
 
 const TOP_EXAMPLES: &str = "\
 Examples:
-  phasekit demo                                   # the whole pipeline on generated data, in seconds
+  phasekit demo                    # the whole pipeline on generated data, in seconds
   phasekit fit --data nuisi/handshake --method tsc-hmm -o handshake.json
   phasekit predict --model handshake.json --data nuisi/handshake/test_00.csv
   phasekit evaluate --data nuisi --methods hmm,tsc-hmm --seeds 20 -o results
-  phasekit <COMMAND> --help                       # every command's options and examples";
+  phasekit <COMMAND> --help        # every command's options and examples";
 
 /// Learn human–robot interactions from demonstrations: segment them into
 /// phases and predict the robot's motion from the human's.
@@ -83,6 +83,78 @@ pub enum Format {
     Csv,
     /// A Markdown table.
     Md,
+}
+
+/// Formats of predictions and segmentations.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum DataFormat {
+    /// CSV with a header.
+    Csv,
+    /// JSON.
+    Json,
+    /// A 2-D float array (NumPy's .npy), the CSV's columns in order.
+    Npy,
+}
+
+/// `stream --on-bad-line` values: what a line that is not a frame does.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum BadLine {
+    /// Stop with an error naming the line.
+    Error,
+    /// A frame with nothing observed (predicted from the dynamics; status `unobserved`).
+    Missing,
+    /// Ignored: no frame, no output line.
+    Skip,
+}
+
+/// A covariance regularisation: a finite number in `[0, 1e100]`, parsed as such
+/// (so that `-1` is a number, refused for what it is).
+fn parse_reg(s: &str) -> Result<f64, String> {
+    let v: f64 = s
+        .trim()
+        .parse()
+        .map_err(|_| format!("`{s}` is not a number"))?;
+    if !v.is_finite() || v < 0.0 {
+        return Err(format!(
+            "must be a finite number ≥ 0 (it is added to every variance), not {s}"
+        ));
+    }
+    if v > 1e100 {
+        return Err(format!(
+            "{s} is far too large: the regularisation is added to every variance, in data units² \
+             (1e-2 is (10 cm)² on data in metres), and phasekit takes at most 1e100; use a value on \
+             the scale of the data's variance, or --standardise with a value like 1e-2"
+        ));
+    }
+    Ok(v)
+}
+
+/// A number of worker threads: at least 1, at most [`max_threads`].
+fn parse_threads(s: &str) -> Result<usize, String> {
+    let n: usize = s
+        .trim()
+        .parse()
+        .map_err(|_| format!("`{s}` is not a whole number"))?;
+    let max = max_threads();
+    if n == 0 {
+        return Err("must be at least 1".into());
+    }
+    if n > max {
+        return Err(format!(
+            "{n} threads cannot help: phasekit takes at most 4 per core of this machine (and 64 on any) \
+             — more only adds the cost of starting them, and the results do not depend on the number"
+        ));
+    }
+    Ok(n)
+}
+
+fn cores() -> usize {
+    std::thread::available_parallelism().map_or(1, |n| n.get())
+}
+
+/// The most worker threads `--threads` accepts: 4 per core, at least 64.
+pub fn max_threads() -> usize {
+    (4 * cores()).max(64)
 }
 
 /// Which columns are the human's and the robot's.
@@ -165,7 +237,12 @@ pub struct ModelArgs {
     #[arg(long, value_name = "N|auto", default_value = "3")]
     pub tsc_states: Count,
     /// gmm-tsc: prune transition clusters holding transitions of fewer than this fraction ρ of the demonstrations
-    #[arg(long, value_name = "X", default_value_t = 0.5)]
+    #[arg(
+        long,
+        value_name = "X",
+        default_value_t = 0.5,
+        allow_negative_numbers = true
+    )]
     pub rho: f64,
     /// gmm-tsc: sub-cluster each transition cluster by normalised time into at most N clusters (0 = off)
     #[arg(long, value_name = "N", default_value_t = 0)]
@@ -177,10 +254,15 @@ pub struct ModelArgs {
     #[arg(long, value_name = "N", default_value_t = 40)]
     pub max_iter: usize,
     /// EM stops when the mean log-likelihood per sequence gains less than this
-    #[arg(long, value_name = "X", default_value_t = 1e-4)]
+    #[arg(
+        long,
+        value_name = "X",
+        default_value_t = 1e-4,
+        allow_negative_numbers = true
+    )]
     pub tol: f64,
     /// Added to every covariance diagonal (data units²: 1e-2 on metres is (10 cm)²)
-    #[arg(long, value_name = "X", default_value_t = 1e-2)]
+    #[arg(long, value_name = "X", default_value = "0.01", value_parser = parse_reg, allow_negative_numbers = true)]
     pub reg: f64,
     /// EM runs from different initialisations (the best is kept)
     #[arg(long, value_name = "N", default_value_t = 1)]
@@ -191,8 +273,8 @@ pub struct ModelArgs {
     /// Z-score every feature with the training frames' mean and std (stored in the model file)
     #[arg(long, alias = "standardize")]
     pub standardise: bool,
-    /// Worker threads [default: all cores]
-    #[arg(long, value_name = "N")]
+    /// Worker threads [default: all cores; at most 4 per core]
+    #[arg(long, value_name = "N", value_parser = parse_threads)]
     pub threads: Option<usize>,
 }
 
@@ -200,12 +282,17 @@ const FIT_EXAMPLES: &str = "\
 Examples:
   phasekit fit --data nuisi/handshake -o handshake.json
   phasekit fit --data nuisi --action rocket --method hmm:states=7 -o rocket.json
-  phasekit fit --data demos/*.csv --human 'h_*' --robot 'r_*' --velocity none --method gmm -o m.json
+  phasekit fit --data 'demos/*.csv' --human 'h_*' --robot 'r_*' --velocity none \\
+      --method gmm -o m.json
   phasekit fit --data nuisi/handshake --method tsc-hmm --format json > report.json
 
-Data: files, or a folder (all its train_*.csv|npy files); for a folder of action
-folders, pick one with --action. Columns default to the human's p1_wrist_* and the
-robot's p2_wrist_* with velocities of both (NuiSI); give --human/--robot otherwise.
+Data: files, quoted patterns ('demos/train_*.csv'), or a folder (all its
+train_*.csv|npy files); for a folder of action folders, pick one with --action.
+Each file is given once. Columns default to the human's p1_wrist_* and the robot's
+p2_wrist_* with velocities of both (NuiSI); give --human/--robot otherwise; other
+columns (a timestamp, a label) are not read. The model file is JSON (-o NAME.json);
+it also records the out-of-distribution threshold of predict and stream, calibrated
+on the training demonstrations.
 
 Methods (presets): see the list below; settings per method with NAME:key=value,...
 (keys: states, tsc-states, window, reg, max-iter, tol, restarts, seed, select,
@@ -240,7 +327,7 @@ pub struct FitArgs {
     /// Model settings.
     #[command(flatten)]
     pub model: ModelArgs,
-    /// Write the model file here (JSON)
+    /// Write the model file here (JSON: NAME.json)
     #[arg(short, long, value_name = "PATH")]
     pub output: Option<PathBuf>,
     /// Print a fit report on stdout (json: iterations, log-likelihood per iteration, time, …)
@@ -260,11 +347,16 @@ pub struct FitArgs {
 const SEGMENT_EXAMPLES: &str = "\
 Examples:
   phasekit segment --model handshake.json --data nuisi/handshake/test_00.csv
-  phasekit segment --model handshake.json --data nuisi/handshake --format json -o seg.json
+  phasekit segment --model handshake.json --data nuisi/handshake -o seg.json
+  phasekit segment --model handshake.json --data 'nuisi/handshake/test_*.csv' -o seg.npy
 
 CSV columns: file,frame,state,transition,cluster — state is the Viterbi state of the
 frame, transition is 1 on transition frames, cluster the transition cluster (empty
-when none). The files need the human's and the robot's columns.";
+when none). NPY: the same columns as numbers, file as the index of the input (in the
+order given) and a missing cluster as NaN. The output's extension (.csv, .json, .npy)
+chooses the format unless --format does. The files need the human's and the robot's
+columns; other columns are not read. A frame with a value so far from every state that
+its density is zero (e.g. 1e200) is taken as not observed, with a warning.";
 
 /// `phasekit segment`.
 #[derive(Debug, Args)]
@@ -275,27 +367,35 @@ pub struct SegmentArgs {
     /// Demonstration files, or a folder (all its CSV/NPY files)
     #[arg(long, value_name = "DIR|FILE", num_args = 1.., required = true)]
     pub data: Vec<PathBuf>,
-    /// Write here instead of stdout
+    /// Write here instead of stdout (`-`: stdout)
     #[arg(short, long, value_name = "PATH")]
     pub output: Option<PathBuf>,
-    /// csv (default) or json
-    #[arg(long, value_enum, default_value = "csv")]
-    pub format: Format,
+    /// csv, json or npy [default: by the output's extension, else csv]
+    #[arg(long, value_enum)]
+    pub format: Option<DataFormat>,
     /// Shorthand for --format json
-    #[arg(long)]
+    #[arg(long, conflicts_with = "format")]
     pub json: bool,
 }
 
 const PREDICT_EXAMPLES: &str = "\
 Examples:
   phasekit predict --model handshake.json --data nuisi/handshake/test_00.csv > robot.csv
-  phasekit predict --model handshake.json --data nuisi/handshake/test_*.csv -o predictions/
-  phasekit predict --model handshake.json --data test_00.csv --covariance -o robot.csv
+  phasekit predict --model handshake.json --data 'nuisi/handshake/test_*' -o predictions/
+  phasekit predict --model handshake.json --data test_00.csv --covariance -o robot.npy
 
 Output: CSV with a header: frame, the robot's features (as named in the model), and
-with --covariance var_X and cov_X_Y entries of the predictive covariance. Prediction
-is causal: frame t uses the human's frames 0..=t only. The files need only the
-human's columns. Several inputs: one <name>.predicted.csv (or .json) each in the -o folder.";
+with --covariance var_X and cov_X_Y entries of the predictive covariance; NPY holds
+the same columns; JSON also lists the flagged frames. The output's extension (.csv,
+.json, .npy) chooses the format unless --format does. Several inputs: one
+<name>.predicted.csv (.json, .npy) each in the -o folder. Prediction is causal:
+frame t uses the human's frames 0..=t only. The files need only the human's columns
+(the others are not read).
+
+Warnings (stderr): frames whose human input is out of distribution (its likelihood
+under the model, per value, below the threshold calibrated on the training data:
+another coordinate frame or unit?), and frames whose values no state can explain
+(e.g. 1e200), which are taken as not observed.";
 
 /// `phasekit predict`.
 #[derive(Debug, Args)]
@@ -309,14 +409,15 @@ pub struct PredictArgs {
     /// Add the predictive covariance's entries
     #[arg(long)]
     pub covariance: bool,
-    /// Output file (one input) or folder (any number of inputs); stdout if absent
+    /// Output file (one input) or folder (any number of inputs); stdout if absent or `-`
     #[arg(short, long, value_name = "PATH")]
     pub output: Option<PathBuf>,
-    /// csv (default) or json ({"file", "features", "mean": [[…] per frame], "covariance": [[[…]]]})
-    #[arg(long, value_enum, default_value = "csv")]
-    pub format: Format,
+    /// csv, json ({"file", "features", "mean", "covariance", "out_of_distribution",
+    /// "rejected"}) or npy [default: by the output's extension, else csv]
+    #[arg(long, value_enum)]
+    pub format: Option<DataFormat>,
     /// Shorthand for --format json
-    #[arg(long)]
+    #[arg(long, conflicts_with = "format")]
     pub json: bool,
 }
 
@@ -324,16 +425,30 @@ const STREAM_EXAMPLES: &str = "\
 Examples:
   cut -d, -f7-9 demo.csv | phasekit stream --model handshake.json
   my_tracker | phasekit stream --model handshake.json --covariance > robot.csv
+  my_tracker | phasekit stream --model handshake.json --columns wx,wy,wz
 
-Input: one human frame per line: the raw values of the model's human columns, in
-the model's order (velocities are computed inside, causally). A first line with
-names is a header: then lines may hold more columns, and the human's are picked
-by name. An empty cell, `NaN` or `NA` is a missing value (the frame is used with
-what is observed). An empty or malformed line is a frame with nothing observed:
-it is reported on stderr and still predicted (from the dynamics alone). A line
-`#reset` starts a new demonstration; other lines starting with `#` are ignored.
+Input: comma-separated lines. A first line with names is a header: it must name
+every human column of the model (exact names; a UTF-8 byte order mark is ignored),
+which are then picked by name from lines of any width; other columns are not read.
+Without a header, each line holds exactly the model's human columns, in its order.
+--columns maps other names (or 1-based column numbers) to the model's human
+columns, in the model's order. An empty cell, `NaN` or `NA` is a missing value
+(the frame is used with what is observed). A line `#reset` starts a new
+demonstration; other lines starting with `#` are comments.
+
+A line that is not a frame (wrong number of values, a value that is not a number
+or is infinite, a blank line, text that is not UTF-8, a banner before the header)
+stops the stream with an error naming the line, unless --on-bad-line says to take
+it as a frame with nothing observed (missing) or to ignore it (skip); either is
+reported on stderr.
+
 Output: one CSV line per input frame, flushed at once, after a header line (see
-`predict`). At exit, per-frame latency on stderr.";
+`predict`), ending with a status column: ok; unobserved (nothing observed:
+predicted from the dynamics alone); ood (out of distribution: the human's input is
+far less likely under the model than the training data, per value; the prediction
+is an extrapolation); rejected (a value no state can explain, e.g. 1e200: taken as
+not observed). At exit, on stderr: frames, statuses, and latency per frame (mean,
+p50, p99, max; a fixed-size histogram keeps memory flat however long the stream).";
 
 /// `phasekit stream`.
 #[derive(Debug, Args)]
@@ -350,6 +465,14 @@ pub struct StreamArgs {
     /// Do not report latency at exit
     #[arg(short, long)]
     pub quiet: bool,
+    /// The input columns holding the model's human columns, in the model's order:
+    /// header names, or 1-based column numbers
+    #[arg(long, value_name = "NAME|N,...", value_delimiter = ',')]
+    pub columns: Option<Vec<String>>,
+    /// What a line that is not a frame does: error (stop, naming the line), missing
+    /// (a frame with nothing observed) or skip (no frame)
+    #[arg(long, value_enum, value_name = "WHAT", default_value = "error")]
+    pub on_bad_line: BadLine,
     /// With a library: composed (one HMM with a rest state; the default) or per-action (one filter per action,
     /// reset when an interaction ends, unknown motions rejected)
     #[arg(long, value_enum, value_name = "HOW")]
@@ -358,10 +481,12 @@ pub struct StreamArgs {
 
 const EVALUATE_EXAMPLES: &str = "\
 Examples:
-  phasekit evaluate --data nuisi                      # PROTOCOL.md: 100 seeds, hmm vs tsc-hmm, all actions
-  phasekit evaluate --data nuisi --action handshake --methods hmm,hmm:states=7,tsc-hmm --seeds 20
-  phasekit evaluate --data nuisi --train-size 1000 --methods hmm   # all training demos, one run
-  phasekit evaluate --data nuisi --format json -o results          # writes results.md and results.json
+  phasekit evaluate --data nuisi          # PROTOCOL.md: 100 seeds, all actions
+  phasekit evaluate --data nuisi --action handshake --methods hmm,tsc-hmm --seeds 20
+  phasekit evaluate --data nuisi --train-size 1000 --methods hmm   # one run on all
+  phasekit evaluate --data nuisi --format json -o results  # results.md, results.json
+  phasekit evaluate --data angles --human 'h_*' --robot 'r_*' \
+    --unit rad --unit-scale 1
 
 Protocol: seed s trains on a random subset of the training demonstrations (all but
 two by default) and predicts every test_* demonstration from the human's frames.
@@ -402,9 +527,9 @@ pub struct EvaluateArgs {
     /// Training demonstrations per seed [default: all but two]; ≥ their number: one run on all
     #[arg(long, value_name = "N")]
     pub train_size: Option<usize>,
-    /// Factor from data units to reported units (100: metres → cm, MSE in cm²)
-    #[arg(long, value_name = "X", default_value_t = 100.0)]
-    pub unit_scale: f64,
+    /// Reported unit (--unit, --unit-scale).
+    #[command(flatten)]
+    pub unit: crate::units::UnitArgs,
     /// Also write PREFIX.md and PREFIX.json (a folder DIR/: DIR/evaluate.md and .json), both or neither
     #[arg(short, long, value_name = "PREFIX")]
     pub output: Option<PathBuf>,
@@ -415,12 +540,12 @@ pub struct EvaluateArgs {
     #[arg(long)]
     pub json: bool,
     /// Exit with an error (after printing) if any method's mean MSE is not finite or above X (reported units²)
-    #[arg(long, value_name = "X")]
+    #[arg(long, value_name = "X", allow_negative_numbers = true)]
     pub fail_above: Option<f64>,
     /// Robustness experiment: remove this fraction of the selected values at random (seeded), from
     /// the training demonstrations and from the test demonstrations' human columns, before the
     /// velocities are computed
-    #[arg(long, value_name = "FRAC")]
+    #[arg(long, value_name = "FRAC", allow_negative_numbers = true)]
     pub missing: Option<f64>,
     /// What --missing removes: values (each independently), frames (whole frames), occlusions
     /// (runs of 10 frames of one side)
@@ -436,9 +561,10 @@ pub struct EvaluateArgs {
 
 const PLOT_EXAMPLES: &str = "\
 Examples:
-  phasekit plot segmentation --model handshake.json --data nuisi/handshake/test_00.csv -o seg.svg
-  phasekit plot prediction --model handshake.json --data nuisi/handshake/test_00.csv -o pred.svg
-  phasekit plot states --model handshake.json --data nuisi/handshake -o states.svg --x p2_wrist_x --y p2_wrist_z";
+  phasekit plot segmentation --model m.json --data nuisi/handshake/test_00.csv -o seg.svg
+  phasekit plot prediction --model m.json --data nuisi/handshake/test_00.csv -o pred.svg
+  phasekit plot states --model m.json --data nuisi/handshake -o states.svg \\
+      --x p2_wrist_x --y p2_wrist_z";
 
 /// `phasekit plot`.
 #[derive(Debug, Args)]
@@ -463,7 +589,7 @@ pub enum PlotKind {
     Prediction(PlotArgsCommon),
     /// Trajectories with the 2σ ellipses of the predicting model's states (a 2-D plane or an oblique 3-D view).
     #[command(
-        after_help = "Examples:\n  phasekit plot states --model m.json --data demos/ -o states.svg\n  phasekit plot states --model m.json --data a.csv b.csv --x p1_wrist_x --y p1_wrist_y -o states.svg\n  phasekit plot states --model m.json --data demos/ --view 3d -o states3d.svg\n\nThe ellipses are those of the model that predicts: a union TSC-HMM's re-trained states,\nλ_T's drawn dashed as transition states; gmm-tsc's mixture, its kept clusters dashed.\nThe 3-D view is an oblique (cabinet) projection of --x, --y (depth) and --z [default:\nthe robot's x, y, z columns], with the outlines of the projected 2σ ellipsoids."
+        after_help = "Examples:\n  phasekit plot states --model m.json --data demos/ -o states.svg\n  phasekit plot states --model m.json --data a.csv b.csv --x p1_wrist_x --y p1_wrist_y \\\n      -o states.svg\n  phasekit plot states --model m.json --data demos/ --view 3d -o states3d.svg\n\nThe ellipses are those of the model that predicts: a union TSC-HMM's re-trained states,\nλ_T's drawn dashed as transition states; gmm-tsc's mixture, its kept clusters dashed.\nThe 3-D view is an oblique (cabinet) projection of --x, --y (depth) and --z [default:\nthe robot's x, y, z columns], with the outlines of the projected 2σ ellipsoids."
     )]
     States(PlotStatesArgs),
     /// Recognition: the posterior of each action over a demonstration, or the accuracy curve of an evaluation.
@@ -480,9 +606,12 @@ pub struct PlotArgsCommon {
     /// One demonstration file
     #[arg(long, value_name = "FILE")]
     pub data: PathBuf,
-    /// The SVG file to write
+    /// The SVG file to write (NAME.svg)
     #[arg(short, long, value_name = "PATH")]
     pub output: PathBuf,
+    /// Unit of the axes (--unit, --unit-scale).
+    #[command(flatten)]
+    pub unit: crate::units::UnitArgs,
 }
 
 /// Arguments of `plot states`.
@@ -509,6 +638,9 @@ pub struct PlotStatesArgs {
     /// The SVG file to write
     #[arg(short, long, value_name = "PATH")]
     pub output: PathBuf,
+    /// Unit of the axes (--unit, --unit-scale).
+    #[command(flatten)]
+    pub unit: crate::units::UnitArgs,
 }
 
 const DEMO_EXAMPLES: &str = "\
@@ -517,9 +649,11 @@ Examples:
   phasekit demo -o /tmp/demo --seed 3
 
 Generates two-agent interactions with known phases (idle, reach, shake, retract),
-fits hmm and tsc-hmm on 12 of them, predicts the other 4 from the human's hand,
-compares with a constant-pose baseline, checks the transitions found against the
-true phase boundaries, and writes the data, the models and three plots to the folder.";
+fits hmm, hmm:states=7 (the control with as many states as the TSC-HMM) and tsc-hmm
+on 12 of them, predicts the other 4 from the human's hand, compares with a
+constant-pose baseline and over --seeds random training subsets, checks the
+transitions found against the true phase boundaries, and writes the data, the
+models and three plots to the folder (replacing an earlier demo's folder only).";
 
 /// `plot states --view` values.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -547,4 +681,7 @@ pub struct DemoArgs {
     /// Test demonstrations
     #[arg(long, value_name = "N", default_value_t = 4)]
     pub test: usize,
+    /// Random training subsets (all but two demonstrations each) of the comparison over seeds; 0: none
+    #[arg(long, value_name = "N", default_value_t = 10)]
+    pub seeds: usize,
 }

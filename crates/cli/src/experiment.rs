@@ -33,10 +33,18 @@ pub struct NamedMethod {
 pub fn parse_method(spec: &str, defaults: &PresetOptions) -> Result<NamedMethod, String> {
     let (name, rest) = spec.split_once(':').unwrap_or((spec, ""));
     let mut o = defaults.clone();
+    let mut seen: Vec<&str> = Vec::new();
     for kv in rest.split(',').filter(|s| !s.is_empty()) {
         let (k, v) = kv
             .split_once('=')
             .ok_or_else(|| format!("`{kv}` in `{spec}` is not key=value"))?;
+        // A repeated key is a mistake (which one was meant?), not "the last wins".
+        if seen.contains(&k) {
+            return Err(format!(
+                "`{k}` given twice in `{spec}`: give every setting once"
+            ));
+        }
+        seen.push(k);
         let bad = |e: &dyn std::fmt::Display| format!("`{kv}` in `{spec}`: {e}");
         match k {
             "states" if v == "auto" => o.auto_states = true,
@@ -122,6 +130,9 @@ pub struct Removal {
     pub mode: RemovalMode,
 }
 
+/// A seed's training and test features (`T × D` each) with values removed.
+type SeedFeatures = (Vec<Vec<f64>>, Vec<Vec<f64>>);
+
 /// Frames of an occlusion.
 const OCCLUSION_FRAMES: usize = 10;
 
@@ -192,7 +203,7 @@ impl Removal {
         spec: &FeatureSpec,
         seed: u64,
         idx: &[usize],
-    ) -> Result<(Vec<Vec<f64>>, Vec<Vec<f64>>), String> {
+    ) -> Result<SeedFeatures, String> {
         let one = |t: &Table, human_only: bool, k: u64| -> Result<Vec<f64>, String> {
             let (_, h, r) = spec.layout(t).map_err(|e| e.to_string())?;
             let sides: Vec<&[usize]> = if human_only { vec![&h] } else { vec![&h, &r] };
@@ -315,7 +326,7 @@ fn run_seed(
     method: &Method,
     train_idx: &[usize],
     protocol: &Protocol,
-    removed: Option<&(Vec<Vec<f64>>, Vec<Vec<f64>>)>,
+    removed: Option<&SeedFeatures>,
 ) -> Result<SeedResult, String> {
     let layout = &prep.layout;
     let d = layout.features.len();
@@ -381,8 +392,22 @@ fn run_seed(
             frames += 1;
         }
     }
+    if frames == 0 {
+        return Err(
+            "no test frame has the robot's position fully observed: nothing to score".into(),
+        );
+    }
+    let mse = se / frames as f64;
+    if !mse.is_finite() {
+        // An overflow must not pass as a result (nor print as a blank): it is a failure.
+        return Err(format!(
+            "the MSE is not finite ({mse}): the squared errors overflow at unit scale {} \
+             (use a smaller --unit-scale), or a prediction is not finite",
+            protocol.unit_scale
+        ));
+    }
     Ok(SeedResult {
-        mse: se / frames as f64,
+        mse,
         fit_seconds,
         predict_seconds,
         frames,

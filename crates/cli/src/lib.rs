@@ -10,6 +10,8 @@ pub mod commands;
 pub mod data;
 pub mod error;
 pub mod experiment;
+pub mod inputs;
+pub mod interrupt;
 pub mod library_file;
 pub mod model_file;
 pub mod npy;
@@ -18,12 +20,14 @@ pub mod pipeline;
 pub mod plot;
 pub mod recognition_plot;
 pub mod recognition_report;
+pub mod units;
 
 pub use error::{CliError, Result};
 
 /// Runs a parsed command line.
 pub fn run(cli: cli::Cli) -> Result<()> {
     use cli::Command;
+    check_outputs(&cli.command)?;
     match &cli.command {
         Command::Fit(a) => commands::fit::run(a),
         Command::Segment(a) => commands::segment::run(a),
@@ -34,4 +38,39 @@ pub fn run(cli: cli::Cli) -> Result<()> {
         Command::Demo(a) => commands::demo::run(a),
         Command::Recognise(a) => commands::recognise::run(a),
     }
+}
+
+/// Before any work: an output whose extension does not fit what the command
+/// writes, or that is one of the command's inputs, is refused (`predict` and
+/// `segment` check theirs themselves, with the names they derive).
+fn check_outputs(command: &cli::Command) -> Result<()> {
+    use cli::{Command, PlotKind};
+    use std::path::Path;
+    match command {
+        Command::Fit(a) if a.library => commands::recognise::check_fit_output(a)?,
+        Command::Fit(a) => {
+            if let Some(o) = &a.output {
+                output::check_extension(o, &["json"], true, "a model file is JSON")?;
+                let files = inputs::fit_files(&a.data, a.action.as_deref())?;
+                let ins: Vec<&Path> = files.iter().map(|p| p.as_path()).collect();
+                output::refuse_inputs(&[o], &ins)?;
+            }
+        }
+        Command::Plot(p) => {
+            let (o, model, files) = match &p.kind {
+                PlotKind::Segmentation(c) | PlotKind::Prediction(c) => {
+                    (&c.output, &c.model, vec![c.data.clone()])
+                }
+                PlotKind::States(s) => (&s.output, &s.model, inputs::data_files(&s.data)?),
+                PlotKind::Recognition(r) => return commands::recognise::check_plot_output(r),
+            };
+            output::check_extension(o, &["svg"], false, "plot writes SVG")?;
+            let ins: Vec<&Path> = std::iter::once(model.as_path())
+                .chain(files.iter().map(|p| p.as_path()))
+                .collect();
+            output::refuse_inputs(&[o], &ins)?;
+        }
+        _ => {}
+    }
+    Ok(())
 }

@@ -10,9 +10,14 @@
 //!
 //! Numbers are written with enough digits to read back bit for bit, so a model
 //! loaded from its file predicts exactly as the one that was fitted.
+//!
+//! `"novelty"` (optional: files written before it existed load without it, and
+//! then nothing is flagged as out of distribution) holds the threshold that
+//! flags human input unlike the training data; see [`Novelty`].
 
 use crate::data::{FeatureSpec, Layout};
 use crate::error::{CliError, Result};
+use phasekit_emission::{Emission, Frames, Gaussian};
 use phasekit_tsc::{FitSummary, Method, Model, Roles};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -98,6 +103,59 @@ impl Standardisation {
     }
 }
 
+/// Calibration of the out-of-distribution flag of `predict` and `stream`.
+///
+/// Every frame is scored by the log predictive density of its observed human
+/// features, `log p(x_t | x_{1:t−1})` under the forward filter of the model
+/// that predicts (`log p(x_t)` for a mixture), divided by the number of
+/// observed feature values (nats per value, so that frames with missing values
+/// compare with complete ones). At fit time every frame of the training
+/// demonstrations is scored the same way; with `low` their 0.1 % quantile and
+/// `median` their median,
+///
+/// `threshold = low − max(median − low, 1)`,
+///
+/// i.e. a frame is flagged when it is as far below the least likely training
+/// frames as those are below the typical one (at least one nat per value, a
+/// density e times lower per value, when the training frames are all alike).
+/// Test data of the training distribution stays above it; data in another
+/// coordinate frame or unit falls far below (see `crates/cli/tests/novelty.rs`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Novelty {
+    /// Frames scoring below this (nats per observed value) are flagged.
+    pub threshold: f64,
+    /// The training frames' 0.1 % quantile of the score.
+    pub low: f64,
+    /// Their median score.
+    pub median: f64,
+    /// How many training frames were scored (those with something observed).
+    pub frames: usize,
+}
+
+/// The smallest margin between the 0.1 % quantile and the threshold (nats per value).
+const NOVELTY_MIN_MARGIN: f64 = 1.0;
+
+impl Novelty {
+    /// Calibrates on the scores of the training frames (see the type's documentation).
+    pub fn from_scores(mut scores: Vec<f64>) -> Option<Novelty> {
+        scores.retain(|s| s.is_finite());
+        if scores.is_empty() {
+            return None;
+        }
+        scores.sort_by(f64::total_cmp);
+        let q = |p: f64| {
+            scores[((p * (scores.len() - 1) as f64).round() as usize).min(scores.len() - 1)]
+        };
+        let (low, median) = (q(0.001), q(0.5));
+        Some(Novelty {
+            threshold: low - (median - low).max(NOVELTY_MIN_MARGIN),
+            low,
+            median,
+            frames: scores.len(),
+        })
+    }
+}
+
 /// The method a model was fitted with.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct MethodInfo {
@@ -131,6 +189,9 @@ pub struct ModelFile {
     pub fit: FitSummary,
     /// The fitted model.
     pub model: Model,
+    /// Calibration of the out-of-distribution flag (absent in older files).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub novelty: Option<Novelty>,
 }
 
 #[derive(Deserialize)]
@@ -164,7 +225,34 @@ impl ModelFile {
             method,
             fit,
             model,
+            novelty: None,
         }
+    }
+
+    /// The same model file with its out-of-distribution threshold calibrated on
+    /// the training demonstrations `seqs` (joint features as the model sees
+    /// them, `T × D` each): see [`Novelty`].
+    pub fn calibrated(mut self, seqs: &[Vec<f64>]) -> Result<Self> {
+        let d = self.layout.features.len();
+        let human = &self.layout.human;
+        let predictor = self.model.predictor(&self.roles)?;
+        let mut scores = Vec::new();
+        for q in seqs {
+            let h: Vec<f64> = q
+                .chunks_exact(d)
+                .flat_map(|f| human.iter().map(move |&k| f[k]))
+                .collect();
+            let frames = Frames::new(&h, human.len())?;
+            let p = predictor.predict(frames, false)?;
+            for (f, lp) in h.chunks_exact(human.len()).zip(&p.log_predictive) {
+                let n = f.iter().filter(|v| !v.is_nan()).count();
+                if let Some(s) = crate::pipeline::score(*lp, n) {
+                    scores.push(s);
+                }
+            }
+        }
+        self.novelty = Novelty::from_scores(scores);
+        Ok(self)
     }
 
     /// The JSON text of the file.
@@ -254,6 +342,16 @@ impl ModelFile {
         // The model's parts must agree (e.g. a union composition needs its union HMM),
         // and its recorded settings must be valid ones.
         self.model.validate()?;
+        for (what, g) in gaussians(&self.model) {
+            check_scale(what, g)?;
+        }
+        if let Some(n) = &self.novelty {
+            if !(n.threshold.is_finite() && n.low.is_finite() && n.median.is_finite()) {
+                return Err(CliError::new(
+                    "the out-of-distribution threshold (\"novelty\") is not a finite number",
+                ));
+            }
+        }
         self.method.settings.validate()?;
         let hv = matches!(
             l.velocity,
@@ -295,4 +393,54 @@ impl ModelFile {
     pub fn n_states(&self) -> usize {
         self.model.n_states()
     }
+}
+
+/// Every Gaussian emission of a model, with what it is.
+fn gaussians(model: &Model) -> Vec<(&'static str, &Gaussian)> {
+    match model {
+        Model::Hmm(h) => vec![("the HMM", h.emission())],
+        Model::TscHmm { model, .. } => {
+            let mut v = vec![
+                ("the base HMM", model.base.emission()),
+                ("the transition HMM", model.transition.emission()),
+            ];
+            if let Some(u) = &model.union {
+                v.push(("the union HMM", u.emission()));
+            }
+            v
+        }
+        Model::Gmm(g) => vec![("the mixture", g.components())],
+        Model::GmmTsc { tsc, mixture } => vec![
+            ("the mixture", mixture.components()),
+            ("the windowed mixture", tsc.mixture.components()),
+            (
+                "the transition mixture",
+                tsc.transition_mixture.components(),
+            ),
+        ],
+    }
+}
+
+/// Largest ratio of a mean's magnitude to its standard deviation: beyond
+/// `2^52`, neighbouring floating-point numbers at the mean are farther apart
+/// than the state is wide, and the state cannot describe any data.
+const MAX_MEAN_TO_SPREAD: f64 = 4_503_599_627_370_496.0;
+
+/// Refuses a Gaussian whose means are too large for its spread to be represented
+/// (e.g. means of 1e200 with variances of 1e-2).
+fn check_scale(what: &str, g: &Gaussian) -> Result<()> {
+    for k in 0..g.n_states() {
+        let (mean, cov) = (g.mean(k), g.covariance(k));
+        for (d, m) in mean.iter().enumerate() {
+            let sd = cov[(d, d)].sqrt();
+            let resolvable = m.is_finite() && sd > 0.0 && m.abs() <= MAX_MEAN_TO_SPREAD * sd;
+            if !resolvable {
+                return Err(CliError::new(format!(
+                    "{what}, state {k}, dimension {d}: mean {m:e} with standard deviation {sd:e}: \
+                     floating-point numbers cannot resolve a state that narrow that far from zero"
+                )));
+            }
+        }
+    }
+    Ok(())
 }

@@ -93,6 +93,26 @@ pub fn parse(bytes: &[u8]) -> Result<Array, String> {
     Ok(Array { rows, cols, data })
 }
 
+/// The bytes of an NPY file (version 1.0, little-endian `f8`, C order)
+/// holding `data` as a `rows × cols` array: what `numpy.load` reads.
+pub fn write(rows: usize, cols: usize, data: &[f64]) -> Vec<u8> {
+    assert_eq!(data.len(), rows * cols, "NPY data is rows × cols values");
+    let dict = format!("{{'descr': '<f8', 'fortran_order': False, 'shape': ({rows}, {cols}), }}");
+    // Magic (6) + version (2) + length (2) + dict + padding + newline: a multiple of 64.
+    let unpadded = 10 + dict.len() + 1;
+    let header_len = dict.len() + 1 + (64 - unpadded % 64) % 64;
+    let mut out = Vec::with_capacity(10 + header_len + data.len() * 8);
+    out.extend_from_slice(b"\x93NUMPY\x01\x00");
+    out.extend_from_slice(&(header_len as u16).to_le_bytes());
+    out.extend_from_slice(dict.as_bytes());
+    out.resize(10 + header_len - 1, b' ');
+    out.push(b'\n');
+    for v in data {
+        out.extend_from_slice(&v.to_le_bytes());
+    }
+    out
+}
+
 fn take(b: &[u8], n: usize) -> Option<(&[u8], &[u8])> {
     (b.len() >= n).then(|| b.split_at(n))
 }

@@ -4,7 +4,7 @@
 
 use crate::bail;
 use crate::cli::{EvaluateArgs, Format};
-use crate::commands::evaluate::{output_files, unit};
+use crate::commands::evaluate::output_files;
 use crate::commands::recognise::rec_err;
 use crate::commands::{column_hint, feature_spec, preset_options, setup_threads, split_methods};
 use crate::data::{self, FeatureSpec};
@@ -35,9 +35,16 @@ pub struct RecognitionJson {
     pub options: PresetOptions,
     /// Wall-clock seconds of the run.
     pub seconds: f64,
+    /// The reported unit's name (`--unit`; its factor from data units is `unit_scale`).
+    #[serde(default = "default_unit")]
+    pub unit: String,
     /// The results.
     #[serde(flatten)]
     pub report: Report,
+}
+
+fn default_unit() -> String {
+    crate::units::Unit::default().name
 }
 
 /// Refuses recognition-only flags with the prediction task.
@@ -133,12 +140,7 @@ pub fn run(a: &EvaluateArgs) -> Result<()> {
     if a.fail_above.is_some() || a.missing.is_some() {
         bail!("--fail-above and --missing apply to --task prediction");
     }
-    if !(a.unit_scale.is_finite() && a.unit_scale > 0.0) {
-        bail!(
-            "--unit-scale must be a positive number, not {}",
-            a.unit_scale
-        );
-    }
+    let unit = a.unit.resolve()?;
     if a.train_size == Some(0) {
         bail!("--train-size must be at least 1");
     }
@@ -206,7 +208,7 @@ pub fn run(a: &EvaluateArgs) -> Result<()> {
             crate::commands::check_lengths(&action.train, m, label)?;
         }
     }
-    let ds = dataset(&actions, &spec, defaults, a.unit_scale)?;
+    let ds = dataset(&actions, &spec, defaults, unit.scale)?;
     let mut settings = ExperimentSettings::default();
     settings.seeds = a.seeds;
     settings.train_size = a.train_size;
@@ -244,6 +246,7 @@ pub fn run(a: &EvaluateArgs) -> Result<()> {
         columns: spec,
         options,
         seconds: clock.elapsed().as_secs_f64(),
+        unit: unit.name,
         report,
     };
     let md = markdown(&json);
@@ -323,7 +326,11 @@ fn opt(v: Option<f64>, digits: usize) -> String {
 /// The Markdown document: every table, then the definitions.
 pub fn markdown(j: &RecognitionJson) -> String {
     let r = &j.report;
-    let u = unit(r.unit_scale);
+    let u = crate::units::Unit {
+        name: j.unit.clone(),
+        scale: r.unit_scale,
+    }
+    .squared();
     let mut s = String::new();
     s.push_str(&format!(
         "Recognition on {} ({} actions: {}), {} seed{}, {:.0} s.\n\n",
@@ -407,7 +414,7 @@ pub fn markdown(j: &RecognitionJson) -> String {
         }
     }
     s.push_str(&format!(
-        "\n**End to end**: robot-prediction MSE ({u}²) of each method told the action (the oracle, as in the prediction experiment) and with the recognised action: the most probable action's prediction, the posterior-weighted mixture, and the mixture with likelihood-per-frame rejection (the rest pose while rejected); Δ = mean over seeds of the relative change against the oracle:\n\n| action | method | oracle | most probable | Δ | mixture | Δ | mixture, rejecting | Δ | seeds |\n|---|---|---:|---:|---:|---:|---:|---:|---:|---:|\n"
+        "\n**End to end**: robot-prediction MSE ({u}) of each method told the action (the oracle, as in the prediction experiment) and with the recognised action: the most probable action's prediction, the posterior-weighted mixture, and the mixture with likelihood-per-frame rejection (the rest pose while rejected); Δ = mean over seeds of the relative change against the oracle:\n\n| action | method | oracle | most probable | Δ | mixture | Δ | mixture, rejecting | Δ | seeds |\n|---|---|---:|---:|---:|---:|---:|---:|---:|---:|\n"
     ));
     let mut rows: Vec<&experiment::EndToEndRow> = r.end_to_end.iter().collect();
     let order = |a: &str| {
@@ -452,7 +459,7 @@ pub fn markdown(j: &RecognitionJson) -> String {
         ));
     }
     s.push_str(&format!(
-        "\n**Continuous streams** of {} test demonstrations of random actions (seeded), back to back, scored per frame: decision = the demonstration's action; delay = frames of an interaction observed until the decision is right for {} frames in a row ({:.1} s) or to the interaction's end; MSE of the robot's prediction ({u}²; per-action filters: the mixture) and of the method told the action and its start:\n\n| method | recogniser | frame accuracy (%) | median delay (frames) | (s) | never settles (%) | MSE | oracle MSE | seeds |\n|---|---|---:|---:|---:|---:|---:|---:|---:|\n",
+        "\n**Continuous streams** of {} test demonstrations of random actions (seeded), back to back, scored per frame: decision = the demonstration's action; delay = frames of an interaction observed until the decision is right for {} frames in a row ({:.1} s) or to the interaction's end; MSE of the robot's prediction ({u}; per-action filters: the mixture) and of the method told the action and its start:\n\n| method | recogniser | frame accuracy (%) | median delay (frames) | (s) | never settles (%) | MSE | oracle MSE | seeds |\n|---|---|---:|---:|---:|---:|---:|---:|---:|\n",
         r.settings.stream_length,
         r.settings.stream_hold_frames,
         r.settings.stream_hold_frames as f64 / FRAME_RATE

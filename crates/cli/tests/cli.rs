@@ -404,8 +404,9 @@ fn stream_matches_predict_and_survives_bad_lines() {
         .get_output()
         .stdout
         .clone();
-    let (sheader, streamed) = parse_csv(&String::from_utf8(out).unwrap());
+    let (sheader, streamed, status) = common::parse_stream(&String::from_utf8(out).unwrap(), true);
     assert_eq!(sheader, header);
+    assert!(status.iter().all(|s| s == "ok"), "{status:?}");
     assert_eq!(streamed.len(), batch.len());
     for (a, b) in batch.iter().zip(&streamed) {
         for (x, y) in a.iter().zip(b) {
@@ -429,11 +430,7 @@ fn stream_matches_predict_and_survives_bad_lines() {
         .get_output()
         .stdout
         .clone();
-    let streamed: Vec<Vec<f64>> = String::from_utf8(out)
-        .unwrap()
-        .lines()
-        .map(|l| l.split(',').map(|c| c.parse().unwrap()).collect())
-        .collect();
+    let (_, streamed, _) = common::parse_stream(&String::from_utf8(out).unwrap(), false);
     assert_eq!(streamed.len(), batch.len());
     for (a, b) in batch.iter().zip(&streamed) {
         for (x, y) in a.iter().zip(b) {
@@ -665,14 +662,15 @@ fn demo_runs_and_writes_three_pictures() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("demo");
     phasekit()
-        .args(["demo", "--train", "8", "--test", "2", "-o"])
+        .args(["demo", "--train", "8", "--test", "2", "--seeds", "2", "-o"])
         .arg(&out)
         .assert()
         .success()
         .stdout(
             predicate::str::contains("| constant mean pose |")
                 .and(predicate::str::contains("| hmm | 4 |"))
-                .and(predicate::str::contains("Next:")),
+                .and(predicate::str::contains("| hmm:states=7 | 7 |"))
+                .and(predicate::str::contains("\nNext (")),
         );
     for svg in ["segmentation.svg", "prediction.svg", "states.svg"] {
         let text = std::fs::read_to_string(out.join(svg)).unwrap();
@@ -681,7 +679,9 @@ fn demo_runs_and_writes_three_pictures() {
             "{svg} is an SVG"
         );
     }
-    ModelFile::load(&out.join("tsc-hmm.json")).unwrap();
+    for model in ["hmm.json", "hmm7.json", "tsc-hmm.json"] {
+        ModelFile::load(&out.join(model)).unwrap();
+    }
 }
 
 #[test]
@@ -916,8 +916,8 @@ fn bad_inputs_of_predict_segment_evaluate_and_plot_are_refused() {
     rows[4][1] = "abc".into();
     write_csv(&d.join("text.csv"), &header, &rows);
     rows[4][1] = "0.1".into();
-    // NaN is a missing value; infinity is refused.
-    rows[9][4] = "inf".into();
+    // NaN is a missing value; infinity is refused (in a column predict reads: the human's).
+    rows[9][1] = "inf".into();
     write_csv(&d.join("nan.csv"), &header, &rows);
     write_csv(
         &d.join("humanonly.csv"),
@@ -940,7 +940,7 @@ fn bad_inputs_of_predict_segment_evaluate_and_plot_are_refused() {
         args(&[
             "predict", "--model", "m.json", "--data", "good.csv", "nan.csv", "-o", "preds/",
         ]),
-        &["nan.csv", "row 11", "column 5", "not a finite number"],
+        &["nan.csv", "row 11", "column 2", "not a finite number"],
     );
     run(
         args(&[
@@ -1544,7 +1544,7 @@ fn stream_writes_each_frame_before_the_input_ends() {
         let line = rx
             .recv_timeout(timeout)
             .expect("a predicted frame is written before the input ends");
-        assert_eq!(line.split(',').count(), 1 + 6, "{line}");
+        assert_eq!(line.split(',').count(), 1 + 6 + 1, "{line}"); // frame, robot, status
     }
     drop(stdin);
     assert!(child.wait().unwrap().success());

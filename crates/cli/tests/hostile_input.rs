@@ -162,6 +162,18 @@ fn the_seed_corpus_reads_as_expected() {
         let n = s.n_in();
         let (mean, _) = s.step(&vec![0.0; n], false).unwrap();
         assert!(mean.iter().all(|v| v.is_finite()));
+        // Hostile values: finite predictions, every frame judged, none failing.
+        for v in [1e200, -1e308, f64::MAX, 1e-300, f64::NAN, 0.0] {
+            let (mean, cov) = s.step(&vec![v; n], true).unwrap();
+            assert!(
+                mean.iter().chain(cov.unwrap()).all(|x| x.is_finite()),
+                "{v}"
+            );
+        }
+        assert!(
+            s.step(&vec![0.0; n + 1], false).is_err(),
+            "a frame of the wrong length"
+        );
     }
 }
 

@@ -1,10 +1,11 @@
 //! Missing values through the command: empty cells, `NaN` and `NA` are "not
-//! observed"; `stream` takes empty or malformed lines as frames with nothing
-//! observed and keeps going.
+//! observed"; `stream --on-bad-line missing` takes empty or malformed lines as
+//! frames with nothing observed and keeps going (by default such a line stops
+//! the stream: see `tests/stream.rs`).
 
 mod common;
 
-use common::{interaction_folder, parse_csv, phasekit};
+use common::{interaction_folder, parse_csv, parse_stream, phasekit};
 use predicates::prelude::*;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -172,7 +173,7 @@ fn stream_takes_bad_lines_as_frames_with_nothing_observed() {
         .clone();
     let batch = rows(&String::from_utf8(batch).unwrap());
     let out = phasekit()
-        .args(["stream", "--model"])
+        .args(["stream", "--on-bad-line", "missing", "--model"])
         .arg(&model)
         .write_stdin(input.join("\n") + "\n")
         .assert()
@@ -182,24 +183,31 @@ fn stream_takes_bad_lines_as_frames_with_nothing_observed() {
                 .and(predicate::str::contains(
                     "stdin line 21: 2 values, expected 6",
                 ))
-                .and(predicate::str::contains("stdin line 32: empty line"))
+                .and(predicate::str::contains("stdin line 32: a blank line"))
                 .and(predicate::str::contains("stdin line 41: column 3"))
                 .and(predicate::str::contains(
                     "taken as a frame with nothing observed",
                 ))
-                .and(predicate::str::contains("4 malformed or empty lines"))
+                .and(predicate::str::contains(
+                    "4 bad lines taken as frames with nothing observed",
+                ))
                 .and(predicate::str::contains("line 55").not()),
         )
         .get_output()
         .stdout
         .clone();
-    let streamed = rows(&String::from_utf8(out).unwrap());
+    let (_, streamed, status) = parse_stream(&String::from_utf8(out).unwrap(), true);
     assert_eq!(streamed.len(), batch.len());
     assert_eq!(streamed.len(), lines.len() - 1 + 4);
     for (a, b) in batch.iter().zip(&streamed) {
         for (x, y) in a.iter().zip(b) {
             assert!((x - y).abs() <= 1e-9 * (1.0 + x.abs()), "{x} vs {y}");
         }
+    }
+    // The frames made of bad lines say so; the partially observed one is ok.
+    for (t, s) in status.iter().enumerate() {
+        let bad = [11, 19, 30, 39].contains(&t);
+        assert_eq!(s, if bad { "unobserved" } else { "ok" }, "frame {t}");
     }
 }
 

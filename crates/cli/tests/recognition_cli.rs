@@ -130,8 +130,40 @@ fn fit_a_library_recognise_and_stream() {
     let mut input = vec!["p1_wrist_x,p1_wrist_y,p1_wrist_z".to_string()];
     input.extend(human_lines(&wave));
     input.insert(20, "1,2".into());
+    // A glitch no state of any action explains: rejected, taken as not observed.
+    input.insert(40, "1e200,0,0".into());
+    // The stream's input safety holds for a library: a line that is not a
+    // frame stops it by default, naming the line…
+    phasekit()
+        .args(["stream", "--quiet", "--model"])
+        .arg(&lib)
+        .write_stdin(input.join("\n") + "\n")
+        .assert()
+        .failure()
+        .stderr(predicate::str::contains(
+            "stdin line 21: 2 values, expected 3",
+        ));
+    // …a header without the library's human columns is refused…
+    phasekit()
+        .args(["stream", "--quiet", "--model"])
+        .arg(&lib)
+        .write_stdin("p1_wrist_x,p1_wrist_y,p1_elbow_z\n0,0,0\n")
+        .assert()
+        .failure()
+        .stderr(predicate::str::contains(
+            "lacks the model's human columns `p1_wrist_z`",
+        ));
+    // …and --on-bad-line missing goes on with a frame with nothing observed.
     let assert = phasekit()
-        .args(["stream", "--quiet", "--recogniser", "per-action", "--model"])
+        .args([
+            "stream",
+            "--quiet",
+            "--recogniser",
+            "per-action",
+            "--on-bad-line",
+            "missing",
+            "--model",
+        ])
         .arg(&lib)
         .write_stdin(input.join("\n") + "\n")
         .assert()
@@ -143,7 +175,7 @@ fn fit_a_library_recognise_and_stream() {
     let mut lines = text.lines();
     assert_eq!(
         lines.next().unwrap(),
-        "frame,decision,p_handover,p_handshake,p_wave,p2_wrist_x,p2_wrist_y,p2_wrist_z,d_p2_wrist_x,d_p2_wrist_y,d_p2_wrist_z"
+        "frame,decision,p_handover,p_handshake,p_wave,p2_wrist_x,p2_wrist_y,p2_wrist_z,d_p2_wrist_x,d_p2_wrist_y,d_p2_wrist_z,status"
     );
     let rows: Vec<&str> = lines.collect();
     assert_eq!(
@@ -151,6 +183,20 @@ fn fit_a_library_recognise_and_stream() {
         input.len() - 1,
         "every frame (the bad line as a frame with nothing observed)"
     );
+    assert!(rows[19].ends_with(",unobserved"), "{}", rows[19]);
+    assert!(rows[39].ends_with(",rejected"), "{}", rows[39]);
+    for r in &rows {
+        let cells: Vec<&str> = r.split(',').collect();
+        assert_eq!(cells.len(), 12, "{r}");
+        assert!(
+            cells[2..11]
+                .iter()
+                .all(|v| v.parse::<f64>().unwrap().is_finite()),
+            "{r}"
+        );
+    }
+    // The glitch does not derail the recognition.
+    assert!(rows[45].contains(",wave,"), "{}", rows[45]);
     // Wave through the motion (the filters reset themselves when it ends).
     assert!(
         rows[rows.len() / 2].contains(",wave,"),
@@ -166,7 +212,7 @@ fn fit_a_library_recognise_and_stream() {
         .assert()
         .success()
         .stdout(predicate::function(|s: &str| {
-            s.lines().count() == 30 && s.lines().all(|l| l.split(',').count() == 12)
+            s.lines().count() == 30 && s.lines().all(|l| l.split(',').count() == 13)
         }));
 
     // Pictures.

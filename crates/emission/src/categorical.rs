@@ -4,7 +4,7 @@
 
 use crate::error::{EmissionError, Result};
 use crate::regularisation::{MStepEvent, MStepReport, Regularisation};
-use crate::{check_dim, check_len, check_state, Emission, Frames, SufficientStatistics};
+use crate::{check_dim, check_len, check_state, Emission, Frames, Marginal, SufficientStatistics};
 use rand::Rng;
 use serde::{Deserialize, Serialize};
 
@@ -261,11 +261,6 @@ impl Emission for Categorical {
         a * self.log_probabilities.iter().sum::<f64>()
     }
 
-    fn marginal(&self, dims: &[usize]) -> Result<Self> {
-        crate::check_dims(dims, 1)?;
-        Ok(self.clone())
-    }
-
     fn sample_into<R: Rng + ?Sized>(
         &self,
         state: usize,
@@ -284,6 +279,13 @@ impl Emission for Categorical {
     }
 }
 
+impl Marginal for Categorical {
+    fn marginal(&self, dims: &[usize]) -> Result<Self> {
+        crate::check_dims(dims, 1)?;
+        Ok(self.clone())
+    }
+}
+
 /// Draws an index from the probability vector `p` (which sums to 1).
 pub fn sample_index<R: Rng + ?Sized>(p: &[f64], rng: &mut R) -> usize {
     let u: f64 = rng.random();
@@ -295,4 +297,22 @@ pub fn sample_index<R: Rng + ?Sized>(p: &[f64], rng: &mut R) -> usize {
         }
     }
     p.iter().rposition(|v| *v > 0.0).unwrap_or(0)
+}
+
+impl crate::ConcatStates for Categorical {
+    /// The same number of symbols on both sides.
+    fn concat_states(&self, other: &Self) -> Result<Self> {
+        if self.n_symbols != other.n_symbols {
+            return Err(EmissionError::InvalidParameter {
+                name: "n_symbols",
+                reason: format!(
+                    "cannot join categorical states over {} and {} symbols",
+                    self.n_symbols, other.n_symbols
+                ),
+            });
+        }
+        let mut p = self.probabilities.clone();
+        p.extend_from_slice(&other.probabilities);
+        Categorical::new(self.n_symbols, p)
+    }
 }

@@ -93,6 +93,9 @@ impl<'a> Frames<'a> {
     }
 
     /// Frame `t` as a slice of length `dim()`.
+    ///
+    /// # Panics
+    /// If `t ≥ len()` (like slice indexing).
     #[inline]
     pub fn frame(&self, t: usize) -> &'a [f64] {
         &self.data[t * self.dim..(t + 1) * self.dim]
@@ -111,6 +114,10 @@ impl<'a> Frames<'a> {
 
     /// Frames `range.start .. range.end` (no re-validation needed; the missing
     /// flag is recomputed for the slice only when the block has missing values).
+    ///
+    /// # Panics
+    /// If the range is decreasing or ends after `len()` (like slice indexing);
+    /// [`Frames::try_slice`] is the checked form.
     pub fn slice(&self, range: std::ops::Range<usize>) -> Frames<'a> {
         let data = &self.data[range.start * self.dim..range.end * self.dim];
         Frames {
@@ -122,6 +129,22 @@ impl<'a> Frames<'a> {
 }
 
 impl<'a> Frames<'a> {
+    /// [`Frames::slice`], or the error naming the range and the length.
+    pub fn try_slice(&self, range: std::ops::Range<usize>) -> Result<Frames<'a>> {
+        if range.start > range.end || range.end > self.len() {
+            return Err(EmissionError::InvalidParameter {
+                name: "range",
+                reason: format!(
+                    "frames {}..{} of a block of {} frames",
+                    range.start,
+                    range.end,
+                    self.len()
+                ),
+            });
+        }
+        Ok(self.slice(range))
+    }
+
     /// Frames `range` known to hold no missing value (no scan).
     #[inline]
     pub(crate) fn slice_complete(&self, range: std::ops::Range<usize>) -> Frames<'a> {
@@ -239,12 +262,27 @@ impl SequenceSet {
     }
 
     /// Sequence `k`.
+    ///
+    /// # Panics
+    /// If `k ≥ len()` (like slice indexing); [`SequenceSet::sequence`] is the
+    /// checked form.
     pub fn get(&self, k: usize) -> Frames<'_> {
         Frames {
             data: &self.data[self.offsets[k] * self.dim..self.offsets[k + 1] * self.dim],
             dim: self.dim,
             missing: self.missing[k],
         }
+    }
+
+    /// Sequence `k`, or the error naming it and the number of sequences.
+    pub fn sequence(&self, k: usize) -> Result<Frames<'_>> {
+        if k >= self.len() {
+            return Err(EmissionError::InvalidParameter {
+                name: "sequence",
+                reason: format!("sequence {k} out of range ({} sequences)", self.len()),
+            });
+        }
+        Ok(self.get(k))
     }
 
     /// True when some value of some sequence is NaN (not observed).
@@ -306,7 +344,8 @@ impl SequenceSet {
 ///
 /// Named fields, so that a call such as
 /// `Gaussian::standard(CovarianceType::Full, Shape { n_states: 4, dim: 12 })`
-/// says which number is which.
+/// says which number is which. (Its fields are public on purpose: it is a
+/// pair of named arguments, with nothing to validate on its own.)
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub struct Shape {
     /// Number of states `S`.

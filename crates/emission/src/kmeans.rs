@@ -15,8 +15,11 @@ pub enum Seeding {
     Random,
 }
 
-/// Result of [`kmeans`].
+/// Result of [`kmeans`], [`lloyd`] and [`weighted_kmeans`].
+///
+/// `#[non_exhaustive]`: read its fields, it is built only here.
 #[derive(Debug, Clone, PartialEq)]
+#[non_exhaustive]
 pub struct KMeans {
     /// `k × D` centroids, row-major.
     pub centroids: Vec<f64>,
@@ -224,6 +227,144 @@ pub fn lloyd(frames: Frames<'_>, mut centroids: Vec<f64>, max_iter: usize) -> Re
                 {
                     *c = s / counts[j] as f64;
                 }
+            }
+        }
+    }
+    Ok(KMeans {
+        centroids,
+        labels,
+        inertia,
+        iterations,
+    })
+}
+
+/// Weighted k-means: clusters the frames with positive weight into `k`
+/// groups, minimising `Σ_t w_t ‖x_t − c_{label(t)}‖²`; k-means++ seeding with
+/// probabilities `∝ w_t · (squared distance to the nearest chosen centroid)`
+/// (the first `∝ w_t`), then Lloyd iterations with weighted means. Frames of
+/// zero weight are labelled with their nearest centroid and move nothing.
+/// Deterministic for a given `rng` state.
+///
+/// Errors when fewer than `k` frames have positive weight, or a weight is
+/// negative or not finite. A cluster that empties is re-seeded at the
+/// weighted frame farthest from its centroid. Missing values (NaN) take the
+/// mean of their dimension's observed values.
+pub fn weighted_kmeans<R: Rng + ?Sized>(
+    frames: Frames<'_>,
+    weights: &[f64],
+    k: usize,
+    max_iter: usize,
+    rng: &mut R,
+) -> Result<KMeans> {
+    if let Some(filled) = mean_imputed(frames) {
+        return weighted_kmeans(
+            Frames::new(&filled, frames.dim())?,
+            weights,
+            k,
+            max_iter,
+            rng,
+        );
+    }
+    let (n, d) = (frames.len(), frames.dim());
+    crate::check_len("k-means weights", n, weights.len())?;
+    if let Some(t) = weights.iter().position(|w| !(w.is_finite() && *w >= 0.0)) {
+        return Err(EmissionError::InvalidParameter {
+            name: "weights",
+            reason: format!(
+                "frame {t}: weight {} is not finite and non-negative",
+                weights[t]
+            ),
+        });
+    }
+    let live: Vec<usize> = (0..n).filter(|&t| weights[t] > 0.0).collect();
+    if k == 0 || live.len() < k {
+        return Err(EmissionError::InvalidParameter {
+            name: "k",
+            reason: format!(
+                "cannot form {k} clusters from {} frames with positive weight",
+                live.len()
+            ),
+        });
+    }
+    let draw = |p: &[f64], rng: &mut R| -> usize {
+        let total: f64 = live.iter().map(|&t| p[t]).sum();
+        if total.is_nan() || total <= 0.0 {
+            return live[rng.random_range(0..live.len())];
+        }
+        let u = rng.random::<f64>() * total;
+        let mut acc = 0.0;
+        for &t in &live {
+            acc += p[t];
+            if u < acc {
+                return t;
+            }
+        }
+        *live.last().unwrap_or(&0)
+    };
+    let mut centroids = Vec::with_capacity(k * d);
+    let first = draw(weights, rng);
+    centroids.extend_from_slice(frames.frame(first));
+    let mut dist: Vec<f64> = frames.iter().map(|x| sq_dist(x, &centroids[..d])).collect();
+    for _ in 1..k {
+        let p: Vec<f64> = dist.iter().zip(weights).map(|(a, w)| a * w).collect();
+        let idx = draw(&p, rng);
+        let start = centroids.len();
+        centroids.extend_from_slice(frames.frame(idx));
+        for (x, dv) in frames.iter().zip(dist.iter_mut()) {
+            *dv = dv.min(sq_dist(x, &centroids[start..start + d]));
+        }
+    }
+    let mut labels = vec![0; n];
+    let (mut inertia, mut iterations) = (f64::INFINITY, 0);
+    let max_iter = max_iter.max(1);
+    for it in 0..max_iter {
+        iterations = it + 1;
+        let mut changed = false;
+        inertia = 0.0;
+        for (t, x) in frames.iter().enumerate() {
+            let (j, dist) = nearest(x, &centroids, d);
+            changed |= labels[t] != j || it == 0;
+            labels[t] = j;
+            inertia += weights[t] * dist;
+        }
+        if !changed || it + 1 == max_iter {
+            break;
+        }
+        let mut sums = vec![0.0; k * d];
+        let mut mass = vec![0.0; k];
+        for &t in &live {
+            let (j, w) = (labels[t], weights[t]);
+            mass[j] += w;
+            for (s, v) in sums[j * d..(j + 1) * d].iter_mut().zip(frames.frame(t)) {
+                *s += w * v;
+            }
+        }
+        for j in 0..k {
+            if mass[j] > 0.0 {
+                for (c, s) in centroids[j * d..(j + 1) * d]
+                    .iter_mut()
+                    .zip(&sums[j * d..(j + 1) * d])
+                {
+                    *c = s / mass[j];
+                }
+            } else {
+                let far = live
+                    .iter()
+                    .copied()
+                    .max_by(|&a, &b| {
+                        let da = sq_dist(
+                            frames.frame(a),
+                            &centroids[labels[a] * d..(labels[a] + 1) * d],
+                        );
+                        let db = sq_dist(
+                            frames.frame(b),
+                            &centroids[labels[b] * d..(labels[b] + 1) * d],
+                        );
+                        da.total_cmp(&db)
+                    })
+                    .unwrap_or(0);
+                centroids[j * d..(j + 1) * d].copy_from_slice(frames.frame(far));
+                labels[far] = j;
             }
         }
     }

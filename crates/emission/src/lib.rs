@@ -12,13 +12,36 @@
 //!   can be built per thread or per sequence and merged in a fixed order;
 //! * [`Emission::m_step`] re-estimates the parameters from merged statistics
 //!   with explicit [`Regularisation`], and reports what it had to do;
-//! * [`Emission::marginal`] restricts every state to a subset of dimensions
-//!   (the human's dimensions of a joint human–robot model);
+//! * [`Emission::initialise`] builds parameters from fixed weights (the
+//!   initialisation of HMMs and mixtures);
 //! * [`Emission::sample_into`] draws a frame from one state.
 //!
+//! Capabilities beyond it, each a small trait ([`capability`]): [`Marginal`]
+//! (the human-only filter), [`ConcatStates`] (the TSC-HMM's union) and
+//! [`Conditional`] (regression).
+//!
 //! Implementations: [`Gaussian`] (full, diagonal, spherical and tied
-//! covariance), [`Categorical`], [`Poisson`] and [`MixtureEmission`] (a mixture of any
-//! emission per state, e.g. hmmlearn's GMMHMM).
+//! covariance), [`Categorical`], [`Poisson`], [`MixtureEmission`] (a mixture of
+//! any emission per state, e.g. hmmlearn's GMMHMM) and, on the per-state route
+//! ([`PerState`] over a [`StateDistribution`]), [`StudentT`]. The guide
+//! [`guide`] ("Writing an emission") shows how to add one.
+//!
+//! ```
+//! use phasekit_emission::{CovarianceType, Emission, Frames, Gaussian, Regularisation, Shape};
+//! use phasekit_emission::rand::SeedableRng;
+//!
+//! // Two states in one dimension, fitted to frames with fixed weights.
+//! let template = Gaussian::standard(CovarianceType::Full, Shape { n_states: 2, dim: 1 })?;
+//! let x = [0.0, 10.0, 0.2, 10.4, -0.2, 9.6];
+//! let frames = Frames::new(&x, 1)?;
+//! let w = [1.0, 0.0, 0.0, 1.0, 1.0, 0.0, 0.0, 1.0, 1.0, 0.0, 0.0, 1.0];
+//! let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0);
+//! let (g, _) = template.initialise(&[(frames, &w)], &Regularisation::none(), &mut rng)?;
+//! assert!((g.mean(1)[0] - 10.0).abs() < 1e-12);
+//! let log_b = g.log_density(frames)?; // T × S
+//! assert!(log_b[0] > log_b[1]);
+//! # Ok::<(), phasekit_emission::EmissionError>(())
+//! ```
 //!
 //! Missing values: a NaN in a frame means "not observed". Every implementation
 //! evaluates such a frame on the marginal of its observed values
@@ -27,7 +50,7 @@
 //! current parameters, so that EM stays exact EM for the observed data; a
 //! frame with nothing observed adds nothing to the emission statistics (its
 //! density does not depend on them). Data without NaN take the plain paths,
-//! bit for bit.
+//! bit for bit. The helpers are public ([`missing`]).
 //!
 //! With an added-diagonal regularisation `Σ = S/n + rI` (the seed paper's), the
 //! expected statistics condition on the maximum-likelihood part `S/n`, so that
@@ -37,28 +60,49 @@
 
 #![warn(missing_docs)]
 
+pub mod capability;
 pub mod categorical;
 pub mod error;
 pub mod frames;
 pub mod gaussian;
+pub mod guide;
 pub mod kmeans;
 /// Dense kernels shared by the crates of the workspace (packed triangles,
 /// SIMD norms and tiles, log-sum-exp). Not a checked API: they assume shapes
 /// their callers have validated and panic otherwise.
 #[doc(hidden)]
 pub mod linalg;
-mod missing;
+pub mod missing;
 pub mod mixture;
+pub mod per_state;
 pub mod poisson;
 pub mod regularisation;
+pub mod student_t;
 
+/// The `nalgebra` this crate's public API uses ([`Gaussian::covariance`]
+/// returns its matrices): a plug-in that names its types compiles against
+/// this one, whatever version it depends on itself.
+pub use nalgebra;
+/// The `rand` this crate's public API uses ([`Emission::sample_into`] and
+/// [`Emission::initialise`] take its generators): a plug-in implements them
+/// with `phasekit_emission::rand::Rng`, whatever version it depends on itself.
+pub use rand;
+
+pub use capability::{ConcatStates, Conditional, ConditionalSplit, Marginal};
 pub use categorical::{Categorical, CategoricalStats};
 pub use error::{EmissionError, Result};
 pub use frames::{Frames, SequenceSet, Shape};
-pub use gaussian::{CovarianceType, Gaussian, GaussianStats};
-pub use mixture::{MixtureEmission, MixtureEmissionStats};
+pub use gaussian::{CovarianceType, Gaussian, GaussianSplit, GaussianStats};
+pub use mixture::{MixtureEmission, MixtureEmissionStats, MixtureSplit};
+pub use per_state::{
+    PerState, PerStateSplit, PerStateStats, StateConditional, StateDistribution, StateSplit,
+};
 pub use poisson::{Poisson, PoissonStats};
-pub use regularisation::{CovarianceRegularisation, MStepEvent, MStepReport, Regularisation};
+pub use regularisation::{
+    jitter_variances, regularised_covariance, regularised_variance, CovarianceRegularisation,
+    MStepEvent, MStepReport, Regularisation,
+};
+pub use student_t::{StudentT, StudentTDof, StudentTSplit};
 
 use rand::Rng;
 use std::fmt::Debug;
@@ -89,7 +133,10 @@ pub trait Emission: Clone + Debug + Send + Sync {
 
     /// Checks that the frames lie in the support of this emission (dimension,
     /// valid symbols or counts). Called once per data set before fitting or
-    /// scoring, so that the hot paths need no checks.
+    /// scoring, so that the hot paths need no checks. NaN (a missing value)
+    /// is not refused by an emission that follows the rule of
+    /// [`Emission::log_density_into`]; one that cannot marginalise refuses it
+    /// here, naming the frame and column.
     fn check_frames(&self, frames: Frames<'_>) -> Result<()> {
         check_dim(self.dim(), frames.dim())
     }
@@ -98,6 +145,11 @@ pub trait Emission: Clone + Debug + Send + Sync {
     ///
     /// `out` must hold `frames.len() · S` values. Frames must have passed
     /// [`Emission::check_frames`]; values outside the support give `-inf`.
+    ///
+    /// The rule for missing values, the same for batch inference and the
+    /// online filter: a frame with NaN is evaluated on the marginal of its
+    /// observed values, `log b_i(x_o) = log ∫ b_i(x) dx_m`, and a frame with
+    /// nothing observed has `log b_i = 0` (see [`missing`]).
     fn log_density_into(&self, frames: Frames<'_>, out: &mut [f64]) -> Result<()>;
 
     /// Allocating convenience form of [`Emission::log_density_into`].
@@ -132,10 +184,6 @@ pub trait Emission: Clone + Debug + Send + Sync {
         0.0
     }
 
-    /// The same states restricted to the dimensions `dims` (in that order):
-    /// `b_i(x_dims) = ∫ b_i(x) dx_rest`.
-    fn marginal(&self, dims: &[usize]) -> Result<Self>;
-
     /// Draws one frame from state `state` into `out` (length `D`).
     fn sample_into<R: Rng + ?Sized>(
         &self,
@@ -146,15 +194,45 @@ pub trait Emission: Clone + Debug + Send + Sync {
 
     /// Number of free parameters (for AIC/BIC).
     fn n_parameters(&self) -> usize;
+
+    /// New parameters of this emission's structure fitted to frames with
+    /// fixed weights, `θ = argmax_θ Σ_t Σ_i w_ti log b_i(x_t; θ)` (plus the
+    /// regularisation): the initialisation of HMMs and mixtures (weights from
+    /// time bins, k-means clusters or random soft assignments). `parts` are
+    /// blocks of frames with their `T × S` weights; `rng` serves emissions
+    /// whose initialisation draws (a mixture's k-means++ per state), so that
+    /// restarts from different seeds differ.
+    ///
+    /// This is the one place where an emission is built from nothing: `self`
+    /// is a template whose parameter values mean nothing yet (e.g.
+    /// [`Gaussian::standard`]'s `μ = 0, Σ = I`). The default, [`fit_weighted`],
+    /// is one [`Emission::accumulate`] and one [`Emission::m_step`] from the
+    /// template (iterated when values are missing), which is exact when the
+    /// sufficient statistics do not depend on the current parameters (Gaussian,
+    /// categorical, Poisson on complete data). An emission whose statistics do
+    /// depend on them (Student-t weights, mixture responsibilities) must
+    /// override it and start from something the data decide: [`StudentT`]
+    /// starts from the weighted Gaussian fit and iterates its ECME steps,
+    /// [`MixtureEmission`] seeds every state's components by weighted
+    /// k-means++ on the frames that state owns.
+    fn initialise<R: Rng + ?Sized>(
+        &self,
+        parts: &[(Frames<'_>, &[f64])],
+        reg: &Regularisation,
+        rng: &mut R,
+    ) -> Result<(Self, MStepReport)> {
+        let _ = rng;
+        fit_weighted(self, parts, reg)
+    }
 }
 
 /// Maximum number of re-estimations by [`fit_weighted`] when values are missing.
 const MAX_REFINE: usize = 200;
 
-/// Fits the parameters of `template`'s structure to frames with fixed
-/// weights: `θ = argmax_θ Σ_t Σ_i w_ti log b_i(x_t; θ)` (plus the
-/// regularisation), as the initialisations of HMMs and mixtures need (`w` from
-/// time bins or k-means clusters). `parts` are blocks of frames with their
+/// The default [`Emission::initialise`]: fits the parameters of `template`'s
+/// structure to frames with fixed weights,
+/// `θ = argmax_θ Σ_t Σ_i w_ti log b_i(x_t; θ)` (plus the regularisation), by
+/// EM for the fixed assignment. `parts` are blocks of frames with their
 /// `T × S` weights. A [placeholder template](Gaussian::standard)'s parameter
 /// values are ignored; a template with real parameters starts the iterations
 /// below when values are missing.
@@ -231,8 +309,9 @@ pub fn check_dim(expected: usize, found: usize) -> Result<()> {
     }
 }
 
-/// Errors unless a buffer has length `expected`.
-pub(crate) fn check_len(context: &'static str, expected: usize, found: usize) -> Result<()> {
+/// Errors unless a buffer has length `expected`; `context` names the buffer
+/// in the message ("sample output buffer", "log-density output buffer", …).
+pub fn check_len(context: &'static str, expected: usize, found: usize) -> Result<()> {
     if expected == found {
         Ok(())
     } else {
@@ -244,8 +323,8 @@ pub(crate) fn check_len(context: &'static str, expected: usize, found: usize) ->
     }
 }
 
-/// Errors unless `state < n_states`.
-pub(crate) fn check_state(state: usize, n_states: usize) -> Result<()> {
+/// Errors unless `state < n_states`, naming both.
+pub fn check_state(state: usize, n_states: usize) -> Result<()> {
     if state < n_states {
         Ok(())
     } else {

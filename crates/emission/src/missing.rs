@@ -1,4 +1,14 @@
-//! Shared machinery for missing values (NaN = "not observed").
+//! Shared machinery for missing values (NaN = "not observed"), public so
+//! that every emission, built in or plug-in, follows one rule:
+//!
+//! * [`crate::Emission::log_density_into`] evaluates a frame with NaN on the
+//!   marginal of its observed values, `b_i(x_o) = ∫ b_i(x) dx_m` (1, i.e.
+//!   `log b_i = 0`, when nothing is observed), and
+//!   [`crate::Emission::check_frames`] does not refuse NaN (an emission that
+//!   cannot marginalise says so with an error, never a guess);
+//! * [`crate::Emission::accumulate`] adds the expected sufficient statistics
+//!   `E[φ(x) | x_o, state i]` under the current parameters, and nothing for a
+//!   frame with nothing observed (its density does not depend on them).
 //!
 //! Frames are walked as maximal runs of complete frames, which go through the
 //! plain (vectorised) kernels unchanged, and single incomplete frames, which
@@ -15,7 +25,7 @@ use crate::Frames;
 /// Calls `f(range, complete)` for the maximal runs of complete frames
 /// (`complete = true`) and for every incomplete frame (`complete = false`,
 /// a range of length 1), in frame order.
-pub(crate) fn for_each_run<E>(
+pub fn for_each_run<E>(
     frames: Frames<'_>,
     mut f: impl FnMut(Range<usize>, bool) -> Result<(), E>,
 ) -> Result<(), E> {
@@ -37,15 +47,15 @@ pub(crate) fn for_each_run<E>(
     Ok(())
 }
 
-/// True when some value of `x` is NaN.
+/// True when some value of `x` is NaN (not observed).
 #[inline]
-pub(crate) fn has_nan(x: &[f64]) -> bool {
+pub fn has_nan(x: &[f64]) -> bool {
     x.iter().any(|v| v.is_nan())
 }
 
 /// Writes the indices of the observed (non-NaN) values of `x` into `obs`.
 #[inline]
-pub(crate) fn observed_dims(x: &[f64], obs: &mut Vec<usize>) {
+pub fn observed_dims(x: &[f64], obs: &mut Vec<usize>) {
     obs.clear();
     obs.extend(
         x.iter()
@@ -55,21 +65,29 @@ pub(crate) fn observed_dims(x: &[f64], obs: &mut Vec<usize>) {
     );
 }
 
-/// Values cached by missing pattern (the set of NaN positions of a frame).
+/// Values cached by missing pattern (the set of NaN positions of a frame):
+/// a marginal model or a conditional, built once per pattern.
 ///
 /// Bounded: when `CAPACITY` patterns are held, the cache is emptied, so that
 /// data whose every frame misses a different set of values cannot grow it
 /// without limit.
 #[derive(Debug)]
-pub(crate) struct PatternCache<V> {
+pub struct PatternCache<V> {
     map: HashMap<Vec<u64>, V>,
     key: Vec<u64>,
 }
 
 const CAPACITY: usize = 4096;
 
+impl<V> Default for PatternCache<V> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
 impl<V> PatternCache<V> {
-    pub(crate) fn new() -> Self {
+    /// An empty cache.
+    pub fn new() -> Self {
         PatternCache {
             map: HashMap::new(),
             key: Vec::new(),
@@ -77,7 +95,7 @@ impl<V> PatternCache<V> {
     }
 
     /// The value for the missing pattern of `x`, built by `make` on first use.
-    pub(crate) fn get_or_try_insert<E>(
+    pub fn get_or_try_insert<E>(
         &mut self,
         x: &[f64],
         make: impl FnOnce() -> Result<V, E>,

@@ -5,11 +5,21 @@
 //! `MixtureEmission<Gaussian>` is hmmlearn's GMMHMM emission and any other emission can
 //! be mixed the same way. The E-step splits the state posterior `γ_t(i)` over the
 //! components in proportion to `w_{i,m} c_{i,m}(x_t)`.
+//!
+//! Initialisation ([`Emission::initialise`]): every state's components are
+//! seeded by weighted k-means++ on the frames that state owns (its weights
+//! from time bins, k-means or a random assignment), each component then
+//! initialised from its cluster by its own [`Emission::initialise`], and the
+//! mixture weights are the clusters' shares of the state's weight. (Starting
+//! every component of a state from the same template would give them equal
+//! responsibilities for ever: they would never separate.) The random draws of
+//! k-means++ come from the caller's generator, so restarts differ.
 
+use crate::capability::{check_split, ConcatStates, Conditional, ConditionalSplit};
 use crate::error::{EmissionError, Result};
 use crate::linalg::log_sum_exp;
 use crate::regularisation::{MStepEvent, MStepReport, Regularisation};
-use crate::{check_len, check_state, Emission, Frames, SufficientStatistics};
+use crate::{check_len, check_state, Emission, Frames, Marginal, SufficientStatistics};
 use rand::Rng;
 use serde::{Deserialize, Serialize};
 use std::cell::RefCell;
@@ -116,8 +126,18 @@ impl<E: Emission> MixtureEmission<E> {
     }
 
     /// The component emission of state `i`.
+    ///
+    /// # Panics
+    /// If `i ≥ S` (like slice indexing); [`MixtureEmission::state_components`]
+    /// is the checked form.
     pub fn components(&self, i: usize) -> &E {
         &self.components[i]
+    }
+
+    /// The component emission of state `i`, or the error naming it.
+    pub fn state_components(&self, i: usize) -> Result<&E> {
+        check_state(i, self.components.len())?;
+        Ok(&self.components[i])
     }
 
     /// Writes into `scratch` (`T × M`) the joint log-terms `log w_{i,m} + log c_{i,m}(x_t)`.
@@ -306,15 +326,6 @@ impl<E: Emission> Emission for MixtureEmission<E> {
             .sum::<f64>()
     }
 
-    fn marginal(&self, dims: &[usize]) -> Result<Self> {
-        let components = self
-            .components
-            .iter()
-            .map(|c| c.marginal(dims))
-            .collect::<Result<Vec<_>>>()?;
-        MixtureEmission::new(self.weights.clone(), components)
-    }
-
     fn sample_into<R: Rng + ?Sized>(
         &self,
         state: usize,
@@ -327,6 +338,70 @@ impl<E: Emission> Emission for MixtureEmission<E> {
         self.components[state].sample_into(k, rng, out)
     }
 
+    fn initialise<R: Rng + ?Sized>(
+        &self,
+        parts: &[(Frames<'_>, &[f64])],
+        reg: &Regularisation,
+        rng: &mut R,
+    ) -> Result<(Self, MStepReport)> {
+        let (s, m, d) = (self.n_states(), self.n_components(), self.dim());
+        let mut report = MStepReport::added_diagonal(reg);
+        let mut weights = Vec::with_capacity(s * m);
+        let mut components = Vec::with_capacity(s);
+        for i in 0..s {
+            // The frames state i owns, with its weights.
+            let (mut xs, mut ws) = (Vec::new(), Vec::new());
+            for (frames, w) in parts {
+                crate::check_dim(d, frames.dim())?;
+                check_len("initialisation weights", frames.len() * s, w.len())?;
+                for (x, wt) in frames.iter().zip(w.chunks_exact(s)) {
+                    if wt[i] > 0.0 && !x.iter().all(|v| v.is_nan()) {
+                        xs.extend_from_slice(x);
+                        ws.push(wt[i]);
+                    }
+                }
+            }
+            let frames = Frames::new(&xs, d)?;
+            let mut r = vec![0.0; ws.len() * m];
+            if m == 1 {
+                r.copy_from_slice(&ws);
+            } else {
+                let km = crate::kmeans::weighted_kmeans(frames, &ws, m, 100, rng).map_err(|e| {
+                    EmissionError::InvalidParameter {
+                        name: "mixture initialisation",
+                        reason: format!("state {i}: {e}"),
+                    }
+                })?;
+                for (t, &l) in km.labels.iter().enumerate() {
+                    r[t * m + l] = ws[t];
+                }
+            }
+            let mut counts = vec![0.0; m];
+            for row in r.chunks_exact(m) {
+                for (c, v) in counts.iter_mut().zip(row) {
+                    *c += v;
+                }
+            }
+            let total: f64 = counts.iter().sum();
+            if total.is_nan() || total <= 0.0 {
+                return Err(EmissionError::InvalidParameter {
+                    name: "initialisation weights",
+                    reason: format!("state {i} received no frame with positive weight"),
+                });
+            }
+            let (c, inner) = self.components[i]
+                .initialise(&[(frames, &r)], reg, rng)
+                .map_err(|e| match e {
+                    EmissionError::NotPositiveDefinite { state, .. } => e.at_state(i, Some(state)),
+                    other => other,
+                })?;
+            report.absorb_components(i, inner);
+            weights.extend(counts.iter().map(|c| c / total));
+            components.push(c);
+        }
+        Ok((MixtureEmission::new(weights, components)?, report))
+    }
+
     fn n_parameters(&self) -> usize {
         self.n_states() * (self.n_components() - 1)
             + self
@@ -334,5 +409,168 @@ impl<E: Emission> Emission for MixtureEmission<E> {
                 .iter()
                 .map(|c| c.n_parameters())
                 .sum::<usize>()
+    }
+}
+
+impl<E: Marginal> Marginal for MixtureEmission<E> {
+    fn marginal(&self, dims: &[usize]) -> Result<Self> {
+        let components = self
+            .components
+            .iter()
+            .map(|c| c.marginal(dims))
+            .collect::<Result<Vec<_>>>()?;
+        MixtureEmission::new(self.weights.clone(), components)
+    }
+}
+
+impl<E: Emission> ConcatStates for MixtureEmission<E> {
+    /// The same number of components and dimension on both sides.
+    fn concat_states(&self, other: &Self) -> Result<Self> {
+        crate::check_dim(self.dim(), other.dim())?;
+        if self.n_components() != other.n_components() {
+            return Err(EmissionError::InvalidParameter {
+                name: "components",
+                reason: format!(
+                    "cannot join mixtures of {} and {} components per state",
+                    self.n_components(),
+                    other.n_components()
+                ),
+            });
+        }
+        let mut weights = self.weights.clone();
+        weights.extend_from_slice(&other.weights);
+        let mut components = self.components.clone();
+        components.extend(other.components.iter().cloned());
+        MixtureEmission::new(weights, components)
+    }
+}
+
+/// The conditionals of a [`MixtureEmission`]: per state, a mixture of the
+/// components' conditionals with input-dependent weights
+/// `π_m(x_I) ∝ w_m c_m(x_I)`, moment-matched:
+/// `E[x_O | x_I] = Σ_m π_m μ_m(x_I)`,
+/// `Cov[x_O | x_I] = Σ_m π_m (Σ_m(x_I) + μ_m μ_mᵀ) − E Eᵀ`.
+#[derive(Debug, Clone)]
+pub struct MixtureSplit<P> {
+    input: Vec<usize>,
+    output: Vec<usize>,
+    n_components: usize,
+    log_weights: Vec<f64>,
+    splits: Vec<P>,
+    log_terms: Vec<f64>,
+    mean: Vec<f64>,
+    cov: Vec<f64>,
+}
+
+impl<P: ConditionalSplit> MixtureSplit<P> {
+    /// `log w_m + log c_m(x_I)` of every component of `state` into `log_terms`.
+    fn terms(&mut self, state: usize, input: &[f64]) -> Result<f64> {
+        let m = self.n_components;
+        for k in 0..m {
+            let lw = self.log_weights[state * m + k];
+            self.log_terms[k] = if lw == f64::NEG_INFINITY {
+                f64::NEG_INFINITY
+            } else {
+                lw + self.splits[state].input_log_density(k, input)?
+            };
+        }
+        Ok(log_sum_exp(&self.log_terms))
+    }
+}
+
+impl<P: ConditionalSplit> ConditionalSplit for MixtureSplit<P> {
+    fn n_states(&self) -> usize {
+        self.splits.len()
+    }
+
+    fn input_dims(&self) -> &[usize] {
+        &self.input
+    }
+
+    fn output_dims(&self) -> &[usize] {
+        &self.output
+    }
+
+    fn input_log_density(&mut self, state: usize, input: &[f64]) -> Result<f64> {
+        check_state(state, self.splits.len())?;
+        check_len("regression input", self.input.len(), input.len())?;
+        self.terms(state, input)
+    }
+
+    fn predict(
+        &mut self,
+        state: usize,
+        input: &[f64],
+        mean: &mut [f64],
+        covariance: &mut [f64],
+    ) -> Result<()> {
+        check_state(state, self.splits.len())?;
+        let no = self.output.len();
+        check_len("regression input", self.input.len(), input.len())?;
+        check_len("regression mean", no, mean.len())?;
+        check_len("regression covariance", no * no, covariance.len())?;
+        let lse = self.terms(state, input)?;
+        if lse == f64::NEG_INFINITY {
+            return Err(EmissionError::InvalidParameter {
+                name: "regression input",
+                reason: format!(
+                    "the input has density zero under every component of state {state}"
+                ),
+            });
+        }
+        mean.fill(0.0);
+        covariance.fill(0.0);
+        for k in 0..self.n_components {
+            let p = (self.log_terms[k] - lse).exp();
+            if p == 0.0 {
+                continue;
+            }
+            self.splits[state].predict(k, input, &mut self.mean, &mut self.cov)?;
+            for (a, v) in mean.iter_mut().zip(&self.mean) {
+                *a += p * v;
+            }
+            for r in 0..no {
+                for c in 0..no {
+                    covariance[r * no + c] +=
+                        p * (self.cov[r * no + c] + self.mean[r] * self.mean[c]);
+                }
+            }
+        }
+        for r in 0..no {
+            for c in 0..no {
+                covariance[r * no + c] -= mean[r] * mean[c];
+            }
+        }
+        Ok(())
+    }
+}
+
+impl<E: Conditional> Conditional for MixtureEmission<E> {
+    type Split = MixtureSplit<E::Split>;
+
+    fn conditional(&self, input: &[usize], output: &[usize]) -> Result<Self::Split> {
+        check_split(input, output, self.dim())?;
+        let splits = self
+            .components
+            .iter()
+            .enumerate()
+            .map(|(i, c)| {
+                c.conditional(input, output).map_err(|e| match e {
+                    EmissionError::NotPositiveDefinite { state, .. } => e.at_state(i, Some(state)),
+                    other => other,
+                })
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let (m, no) = (self.n_components(), output.len());
+        Ok(MixtureSplit {
+            input: input.to_vec(),
+            output: output.to_vec(),
+            n_components: m,
+            log_weights: self.log_weights.clone(),
+            splits,
+            log_terms: vec![0.0; m],
+            mean: vec![0.0; no],
+            cov: vec![0.0; no * no],
+        })
     }
 }

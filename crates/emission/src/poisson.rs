@@ -4,7 +4,7 @@
 use crate::error::{EmissionError, Result};
 use crate::regularisation::{MStepEvent, MStepReport, Regularisation};
 use crate::{
-    check_dim, check_dims, check_len, check_state, Emission, Frames, SufficientStatistics,
+    check_dim, check_dims, check_len, check_state, Emission, Frames, Marginal, SufficientStatistics,
 };
 use rand::Rng;
 use serde::{Deserialize, Serialize};
@@ -170,14 +170,14 @@ impl Emission for Poisson {
                     continue;
                 }
                 let mut acc = -log_fact;
-                for k in 0..d {
-                    if x[k].is_nan() {
+                for (k, &xk) in x.iter().enumerate() {
+                    if xk.is_nan() {
                         continue;
                     }
                     let lam = self.rates[i * d + k];
                     // 0 · log 0 = 0: a zero count has probability e^{−λ} even when λ = 0.
-                    if x[k] > 0.0 {
-                        acc += x[k] * self.log_rates[i * d + k];
+                    if xk > 0.0 {
+                        acc += xk * self.log_rates[i * d + k];
                     }
                     acc -= lam;
                 }
@@ -218,12 +218,12 @@ impl Emission for Poisson {
             for i in 0..s {
                 let w = weights[t * s + i];
                 stats.weight[i] += w;
-                for k in 0..d {
+                for (k, &xk) in x.iter().enumerate() {
                     // A missing count adds its expectation `λ_ik` under the current model.
-                    let v = if x[k].is_nan() {
+                    let v = if xk.is_nan() {
                         self.rates[i * d + k]
                     } else {
-                        x[k]
+                        xk
                     };
                     stats.sum[i * d + k] += w * v;
                 }
@@ -259,16 +259,6 @@ impl Emission for Poisson {
         Ok(report)
     }
 
-    fn marginal(&self, dims: &[usize]) -> Result<Self> {
-        check_dims(dims, self.dim)?;
-        let rates = self
-            .rates
-            .chunks_exact(self.dim)
-            .flat_map(|r| dims.iter().map(move |&k| r[k]))
-            .collect();
-        Poisson::new(dims.len(), rates)
-    }
-
     fn sample_into<R: Rng + ?Sized>(
         &self,
         state: usize,
@@ -295,5 +285,27 @@ impl Emission for Poisson {
 
     fn n_parameters(&self) -> usize {
         self.rates.len()
+    }
+}
+
+impl Marginal for Poisson {
+    fn marginal(&self, dims: &[usize]) -> Result<Self> {
+        check_dims(dims, self.dim)?;
+        let rates = self
+            .rates
+            .chunks_exact(self.dim)
+            .flat_map(|r| dims.iter().map(move |&k| r[k]))
+            .collect();
+        Poisson::new(dims.len(), rates)
+    }
+}
+
+impl crate::ConcatStates for Poisson {
+    /// The same dimension on both sides.
+    fn concat_states(&self, other: &Self) -> Result<Self> {
+        check_dim(self.dim, other.dim)?;
+        let mut rates = self.rates.clone();
+        rates.extend_from_slice(&other.rates);
+        Poisson::new(self.dim, rates)
     }
 }

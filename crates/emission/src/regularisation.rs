@@ -1,7 +1,10 @@
 //! How an M-step is regularised, and the report of what it had to do.
 
-use crate::error::{EmissionError, Result};
+use crate::error::{readable, EmissionError, Result};
+use crate::linalg;
+use nalgebra::DMatrix;
 use serde::{Deserialize, Serialize};
+use std::fmt;
 
 /// Regularisation of covariance matrices in the M-step.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -25,6 +28,26 @@ pub enum CovarianceRegularisation {
         /// Degrees of freedom `ν` (≥ 0 here; the prior is proper for `ν > D − 1`).
         dof: f64,
     },
+}
+
+impl fmt::Display for CovarianceRegularisation {
+    /// As a message to a user: "no covariance regularisation",
+    /// "regularisation: added diagonal 0.01", "inverse-Wishart prior (scale 1, 3
+    /// degrees of freedom)".
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            CovarianceRegularisation::None => write!(f, "no covariance regularisation"),
+            CovarianceRegularisation::AddDiagonal(r) => {
+                write!(f, "regularisation: added diagonal {}", readable(*r))
+            }
+            CovarianceRegularisation::InverseWishart { scale, dof } => write!(
+                f,
+                "inverse-Wishart prior (scale {}, {} degrees of freedom)",
+                readable(*scale),
+                readable(*dof)
+            ),
+        }
+    }
 }
 
 /// Regularisation applied by every M-step, validated at construction.
@@ -170,7 +193,10 @@ impl Regularisation {
 }
 
 /// One thing an M-step had to do beyond the plain update.
+///
+/// `#[non_exhaustive]`: match with a wildcard arm.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[non_exhaustive]
 pub enum MStepEvent {
     /// The state received total weight below the minimum and kept its parameters.
     KeptEmptyState {
@@ -194,7 +220,11 @@ pub enum MStepEvent {
 
 /// What an M-step did: the regularisation it applied to every covariance and
 /// the states that needed special treatment.
+///
+/// `#[non_exhaustive]`: build one with `MStepReport::default()` (or
+/// [`MStepReport::added_diagonal`]) and push events.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[non_exhaustive]
 pub struct MStepReport {
     /// Amount added to every covariance diagonal by [`CovarianceRegularisation::AddDiagonal`].
     pub added_diagonal: f64,
@@ -203,6 +233,43 @@ pub struct MStepReport {
 }
 
 impl MStepReport {
+    /// An empty report of an M-step that added `r` to every covariance
+    /// diagonal (the amount [`CovarianceRegularisation::AddDiagonal`] adds, 0
+    /// for the others).
+    pub fn added_diagonal(reg: &Regularisation) -> Self {
+        MStepReport {
+            added_diagonal: match reg.covariance() {
+                CovarianceRegularisation::AddDiagonal(r) => r,
+                _ => 0.0,
+            },
+            events: Vec::new(),
+        }
+    }
+
+    /// Appends the events of a one-state report as events of `state`: the
+    /// per-state route fits every state alone, as its state 0.
+    pub fn absorb_state(&mut self, state: usize, inner: MStepReport) {
+        self.added_diagonal = self.added_diagonal.max(inner.added_diagonal);
+        for e in inner.events {
+            self.events.push(match e {
+                MStepEvent::KeptEmptyState {
+                    component, weight, ..
+                } => MStepEvent::KeptEmptyState {
+                    state,
+                    component,
+                    weight,
+                },
+                MStepEvent::Jitter {
+                    component, amount, ..
+                } => MStepEvent::Jitter {
+                    state,
+                    component,
+                    amount,
+                },
+            });
+        }
+    }
+
     /// Appends the events of an inner model whose "states" are the components of `state`.
     pub fn absorb_components(&mut self, state: usize, inner: MStepReport) {
         self.added_diagonal = self.added_diagonal.max(inner.added_diagonal);
@@ -235,5 +302,153 @@ impl MStepReport {
                 _ => 0.0,
             })
             .sum()
+    }
+}
+
+/// The covariance of one state from its scatter `S = Σ_t w_t (x_t − μ)(x_t − μ)ᵀ`
+/// about the new mean and its weight `n = Σ_t w_t`, regularised by `reg`:
+///
+/// * none: `Σ = S / n`;
+/// * added diagonal: `Σ = S / n + r I`;
+/// * inverse-Wishart `IW(ψ I, ν)`: `Σ = (S + ψ I) / (n + ν + D + 1)`;
+///
+/// symmetrised, and made positive definite by the smallest jitter
+/// `10^k · 10⁻¹² · (mean variance)` on the diagonal up to `reg.max_jitter()`
+/// (reported as an [`MStepEvent::Jitter`] of `state` in `events`), or the
+/// error naming `state`. Every emission with a covariance uses it (Gaussian,
+/// Student-t, plug-ins), so that they regularise alike.
+pub fn regularised_covariance(
+    scatter: DMatrix<f64>,
+    n: f64,
+    reg: &Regularisation,
+    state: usize,
+    events: &mut Vec<MStepEvent>,
+) -> Result<DMatrix<f64>> {
+    let d = scatter.nrows();
+    let mut cov = match reg.covariance() {
+        CovarianceRegularisation::None => scatter / n,
+        CovarianceRegularisation::AddDiagonal(r) => {
+            let mut c = scatter / n;
+            for k in 0..d {
+                c[(k, k)] += r;
+            }
+            c
+        }
+        CovarianceRegularisation::InverseWishart { scale, dof } => {
+            let mut c = scatter;
+            for k in 0..d {
+                c[(k, k)] += scale;
+            }
+            c / (n + dof + d as f64 + 1.0)
+        }
+    };
+    cov = (&cov + cov.transpose()) * 0.5;
+    if linalg::cholesky(&cov).is_some() {
+        return Ok(cov);
+    }
+    let mean_var = (cov.trace() / d as f64).abs();
+    let mut jitter = 1e-12
+        * if mean_var > 0.0 && mean_var.is_finite() {
+            mean_var
+        } else {
+            1.0
+        };
+    while jitter <= reg.max_jitter() {
+        let mut c = cov.clone();
+        for k in 0..d {
+            c[(k, k)] += jitter;
+        }
+        if linalg::cholesky(&c).is_some() {
+            events.push(MStepEvent::Jitter {
+                state,
+                component: None,
+                amount: jitter,
+            });
+            return Ok(c);
+        }
+        jitter *= 10.0;
+    }
+    Err(EmissionError::NotPositiveDefinite {
+        state,
+        component: None,
+        detail: format!(
+            " after the M-step ({}, total weight {}, {})",
+            reg.covariance(),
+            readable(n),
+            jitter_allowed(reg)
+        ),
+    })
+}
+
+/// "no jitter allowed" or "jitter allowed up to 1e-6", for messages.
+fn jitter_allowed(reg: &Regularisation) -> String {
+    if reg.max_jitter() > 0.0 {
+        format!("jitter allowed up to {}", readable(reg.max_jitter()))
+    } else {
+        "no jitter allowed".into()
+    }
+}
+
+/// Makes the variances of one diagonal/spherical state positive, adding the
+/// same jitter to all of them (as [`regularised_covariance`] does to a full
+/// diagonal) when `reg` allows, reported in `events`, or errors naming `state`.
+pub fn jitter_variances(
+    vars: &mut [f64],
+    reg: &Regularisation,
+    state: usize,
+    events: &mut Vec<MStepEvent>,
+) -> Result<()> {
+    let bad = |vars: &[f64]| vars.iter().position(|v| !(*v > 0.0 && v.is_finite()));
+    let Some(k) = bad(vars) else {
+        return Ok(());
+    };
+    if vars.iter().all(|v| v.is_finite()) {
+        let mean_var = (vars.iter().sum::<f64>() / vars.len() as f64).abs();
+        let mut jitter = 1e-12
+            * if mean_var > 0.0 && mean_var.is_finite() {
+                mean_var
+            } else {
+                1.0
+            };
+        while jitter <= reg.max_jitter() {
+            let jittered: Vec<f64> = vars.iter().map(|v| v + jitter).collect();
+            if bad(&jittered).is_none() {
+                vars.copy_from_slice(&jittered);
+                events.push(MStepEvent::Jitter {
+                    state,
+                    component: None,
+                    amount: jitter,
+                });
+                return Ok(());
+            }
+            jitter *= 10.0;
+        }
+    }
+    Err(EmissionError::NotPositiveDefinite {
+        state,
+        component: None,
+        detail: format!(
+            " (variance {} after the M-step, {}; a constant dimension needs covariance regularisation)",
+            readable(vars[k]),
+            jitter_allowed(reg)
+        ),
+    })
+}
+
+/// Variance update of a diagonal/spherical state: scatter `q` (sum of the
+/// weighted squared deviations over the `k` pooled dimensions), weight `n`,
+/// frame dimension `d`:
+///
+/// * none: `q / (n k)`;
+/// * added diagonal: `q / (n k) + r`;
+/// * inverse-Wishart: `(q + k ψ) / (k (n + ν + d + 1))`.
+pub fn regularised_variance(q: f64, n: f64, k: f64, d: f64, reg: &Regularisation) -> f64 {
+    let q = q.max(0.0);
+    match reg.covariance() {
+        CovarianceRegularisation::None => q / (n * k),
+        CovarianceRegularisation::AddDiagonal(r) => q / (n * k) + r,
+        CovarianceRegularisation::InverseWishart { scale, dof } => {
+            (q + k * scale) / (k * (n + dof + d + 1.0))
+        }
     }
 }

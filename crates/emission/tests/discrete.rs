@@ -4,7 +4,7 @@ mod common;
 
 use common::*;
 use phasekit_emission::{
-    Categorical, Emission, EmissionError, Frames, MStepEvent, Poisson, Regularisation,
+    Categorical, Emission, EmissionError, Frames, MStepEvent, Marginal, Poisson, Regularisation,
     SufficientStatistics,
 };
 use proptest::prelude::*;

@@ -2,13 +2,16 @@
 //! reference computations (textbook densities with nalgebra's determinant and
 //! inverse, two-pass weighted moments, direct log-sum-exp).
 
+// Index loops mirror the formulas they check (several arrays indexed alike).
+#![allow(clippy::needless_range_loop)]
+
 mod common;
 
 use common::*;
 use nalgebra::{DMatrix, DVector};
 use phasekit_emission::{
-    CovarianceType, Emission, EmissionError, Frames, Gaussian, MStepEvent, MixtureEmission,
-    Regularisation, Shape, SufficientStatistics,
+    CovarianceType, Emission, EmissionError, Frames, Gaussian, MStepEvent, Marginal,
+    MixtureEmission, Regularisation, Shape, SufficientStatistics,
 };
 use proptest::prelude::*;
 use rand::seq::SliceRandom;
@@ -472,8 +475,7 @@ fn gaussian_stats_of_another_model_are_refused() {
             continue; // same shape, only a different reference point: accumulation is legitimate
         }
         assert!(
-            base.accumulate(frames, &vec![0.5; 6 * 2], &mut theirs)
-                .is_err(),
+            base.accumulate(frames, &[0.5; 6 * 2], &mut theirs).is_err(),
             "{other:?}"
         );
         let mut m = base.clone();
@@ -504,9 +506,7 @@ fn degenerate_setup(
     for tt in 0..t {
         for k in 0..d {
             let generic = 1.0 + 2.0 * normal(&mut rng);
-            data.push(if tt < 10 {
-                generic
-            } else if constant_dim_only && k != 1 {
+            data.push(if tt < 10 || (constant_dim_only && k != 1) {
                 generic
             } else {
                 x0[k]
@@ -921,7 +921,7 @@ fn mixture_m_step_errors_name_state_and_component_and_leave_model_unchanged() {
     let mut rng = rng(21);
     let (mix, _) = random_mixture(CovarianceType::Full, 2, 2, 2, &mut rng);
     // All frames identical: every component covariance is singular.
-    let data = vec![0.3, -0.7].repeat(10);
+    let data = [0.3, -0.7].repeat(10);
     let frames = Frames::new(&data, 2).unwrap();
     let gamma: Vec<f64> = (0..10).flat_map(|_| [0.0, 1.0]).collect();
     let mut st = mix.new_stats();

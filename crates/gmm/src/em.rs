@@ -9,9 +9,7 @@
 use crate::error::{GmmError, Result};
 use crate::model::{normalise_log_row, Gmm};
 use phasekit_emission::kmeans::{kmeans, Seeding};
-use phasekit_emission::{
-    fit_weighted, Emission, Frames, MStepReport, Regularisation, SufficientStatistics,
-};
+use phasekit_emission::{Emission, Frames, MStepReport, Regularisation, SufficientStatistics};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
@@ -349,7 +347,7 @@ impl Em {
                 *c += v;
             }
         }
-        let (components, _) = fit_weighted(template, &[(frames, &r)], &self.regularisation)?;
+        let (components, _) = template.initialise(&[(frames, &r)], &self.regularisation, rng)?;
         let weights = counts.iter().map(|c| c / n as f64).collect();
         Gmm::new(weights, components)
     }

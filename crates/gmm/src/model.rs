@@ -2,7 +2,7 @@
 
 use crate::error::{GmmError, Result};
 use phasekit_emission::linalg::log_sum_exp;
-use phasekit_emission::{Emission, Frames, Gaussian};
+use phasekit_emission::{Emission, Frames, Gaussian, Marginal};
 use rand::Rng;
 use serde::{Deserialize, Serialize};
 
@@ -222,7 +222,9 @@ impl<E: Emission> Gmm<E> {
         Ok(-2.0 * self.log_likelihood(frames)?
             + self.n_parameters() as f64 * (frames.len() as f64).ln())
     }
+}
 
+impl<E: Marginal> Gmm<E> {
     /// The mixture of the components' marginals on `dims` (same weights).
     pub fn marginal(&self, dims: &[usize]) -> Result<Self> {
         Gmm::new(self.weights.clone(), self.components.marginal(dims)?)

@@ -14,18 +14,34 @@
 //! `μ_o + Σ_{o,i'} Σ_{i'i'}⁻¹ (x_{i'} − μ_{i'})` over the observed subset `i'`
 //! (the outputs' marginal when nothing is observed). These conditionals are
 //! built once per missing pattern and cached by the batch and online predictors.
+//!
+//! Frames no state can explain: a frame whose input density is zero under
+//! every state the belief allows (in floating point: a value so far from every
+//! state, e.g. `1e200`, that its log-density is `−inf`) would zero the forward
+//! variable and, with it, every later prediction. Such a frame is *rejected*:
+//! reported in [`Prediction::rejected`] (online: [`FrameEvidence::rejected`]),
+//! and taken as not observed — the belief takes its transition step only and
+//! the outputs are predicted from the outputs' marginals — so that the next
+//! frames are predicted exactly as if its inputs had been missing.
+//!
+//! Evidence: every prediction also carries the log predictive density of each
+//! frame's observed inputs, `log p(x_t | x_{1:t−1})` under the HMM (the forward
+//! normaliser `log c_t`) or `log p(x_t)` under the mixture: 0 for a frame with
+//! nothing observed, `−inf` for a rejected one. A caller compares it with what
+//! the training data gave to tell input unlike the training demonstrations.
 
 use crate::conditional::{check_io, Conditional};
 use crate::error::Result;
 use nalgebra::DMatrix;
-use phasekit_emission::{Emission, EmissionError, Frames, Gaussian};
+use phasekit_emission::{Emission, EmissionError, Frames, Gaussian, Marginal};
 use phasekit_gmm::Gmm;
-use phasekit_hmm::{ForwardFilter, Hmm};
+use phasekit_hmm::{ForwardFilter, Hmm, HmmError};
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
 
 /// Predicted outputs of a sequence.
 #[derive(Debug, Clone, PartialEq)]
+#[non_exhaustive]
 pub struct Prediction {
     /// Number of output dims `O`.
     pub n_out: usize,
@@ -35,6 +51,33 @@ pub struct Prediction {
     pub covariance: Option<Vec<f64>>,
     /// The weights used at every frame, `T × K` row-major.
     pub weights: Vec<f64>,
+    /// Per frame, the log predictive density of its observed inputs:
+    /// `log p(x_t | x_{1:t−1})` (HMM-GMR) or `log p(x_t)` (static GMR); 0 when
+    /// nothing is observed, `−inf` for a rejected frame.
+    pub log_predictive: Vec<f64>,
+    /// Frames whose inputs have density zero under every state the belief
+    /// allowed, in order: each was taken as not observed (see the module
+    /// documentation).
+    pub rejected: Vec<usize>,
+}
+
+/// What one frame told about its inputs (online prediction).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FrameEvidence {
+    /// `log p(x_t | x_{1:t−1})` of the frame's observed inputs (static GMR:
+    /// `log p(x_t)`); 0 when nothing is observed, `−inf` when rejected.
+    pub log_predictive: f64,
+    /// The frame's inputs had density zero under every state the belief
+    /// allowed, and the frame was taken as not observed.
+    pub rejected: bool,
+}
+
+impl FrameEvidence {
+    /// Before any frame: nothing observed, nothing rejected.
+    pub const NONE: FrameEvidence = FrameEvidence {
+        log_predictive: 0.0,
+        rejected: false,
+    };
 }
 
 /// The conditionals of every state of a joint Gaussian emission.
@@ -201,12 +244,15 @@ impl Regression {
         }
     }
 
-    /// Mixes over a whole sequence with per-frame weights (`T × K`).
+    /// Mixes over a whole sequence with per-frame weights (`T × K`); the
+    /// evidence is passed through.
     fn mix_sequence(
         &self,
         frames: Frames<'_>,
         weights: Vec<f64>,
         with_covariance: bool,
+        log_predictive: Vec<f64>,
+        rejected: Vec<usize>,
     ) -> Result<Prediction> {
         let (k, o, t) = (self.n_states(), self.n_out(), frames.len());
         let mut mean = vec![0.0; t * o];
@@ -229,6 +275,8 @@ impl Regression {
             mean,
             covariance: cov,
             weights,
+            log_predictive,
+            rejected,
         })
     }
 }
@@ -317,16 +365,86 @@ impl GmmRegression {
         &self.regression
     }
 
+    /// The mixture on the input dims, whose responsibilities weigh the conditionals.
+    pub fn input_model(&self) -> &Gmm {
+        &self.input_model
+    }
+
+    /// Responsibilities of the frames' log-densities `row` (length `K`, each
+    /// `log c_k(x_t)`), in place; returns `log p(x_t)`. A frame no component
+    /// explains (`−inf`) gets the weights of a frame with nothing observed
+    /// (the prior `π`) and is reported by the return value `−inf`.
+    fn responsibilities_in_place(&self, row: &mut [f64]) -> f64 {
+        let lse = self.normalise(row);
+        if lse == f64::NEG_INFINITY {
+            // log c_k = 0 for every k: the same arithmetic as a missing frame.
+            row.fill(0.0);
+            self.normalise(row);
+        }
+        lse
+    }
+
+    /// `row_k ← π_k e^{row_k} / Σ_j π_j e^{row_j}`; returns the log of the denominator.
+    fn normalise(&self, row: &mut [f64]) -> f64 {
+        for (w, pi) in row.iter_mut().zip(self.input_model.weights()) {
+            *w += if *pi > 0.0 {
+                pi.ln()
+            } else {
+                f64::NEG_INFINITY
+            };
+        }
+        let lse = phasekit_emission::linalg::log_sum_exp(row);
+        if lse == f64::NEG_INFINITY {
+            row.fill(0.0);
+        } else {
+            row.iter_mut().for_each(|w| *w = (*w - lse).exp());
+        }
+        lse
+    }
+
     /// Predicts the outputs of every frame of `input_frames` (input dims only, in `input` order).
+    ///
+    /// A frame that no component explains is rejected (see the module documentation):
+    /// weighted by the prior `π` and predicted from the outputs' marginals.
     pub fn predict(&self, input_frames: Frames<'_>, with_covariance: bool) -> Result<Prediction> {
-        let weights = self.input_model.responsibilities(input_frames)?;
-        self.regression
-            .mix_sequence(input_frames, weights, with_covariance)
+        self.input_model.check_frames(input_frames)?;
+        let (k, d) = (self.regression.n_states(), input_frames.dim());
+        let mut weights = vec![0.0; input_frames.len() * k];
+        self.input_model
+            .components()
+            .log_density_into(input_frames, &mut weights)?;
+        let mut log_predictive = Vec::with_capacity(input_frames.len());
+        let mut rejected = Vec::new();
+        for (t, row) in weights.chunks_exact_mut(k).enumerate() {
+            let lse = self.responsibilities_in_place(row);
+            if lse == f64::NEG_INFINITY {
+                rejected.push(t);
+            }
+            log_predictive.push(lse);
+        }
+        if rejected.is_empty() {
+            return self.regression.mix_sequence(
+                input_frames,
+                weights,
+                with_covariance,
+                log_predictive,
+                rejected,
+            );
+        }
+        let inputs = without_frames(input_frames, &rejected);
+        self.regression.mix_sequence(
+            Frames::new(&inputs, d)?,
+            weights,
+            with_covariance,
+            log_predictive,
+            rejected,
+        )
     }
 
     /// Predicts one frame without allocating: `weights` (length `K`) receives the
     /// responsibilities, `mean` (`O`) and optionally `cov` (`O × O`) the prediction;
-    /// `scratch` must hold `K × O` values.
+    /// `scratch` must hold `K × O` values. Returns the frame's evidence; a
+    /// rejected frame is predicted as [`GmmRegression::predict`] does.
     pub fn predict_one_into(
         &self,
         input_frame: &[f64],
@@ -334,27 +452,38 @@ impl GmmRegression {
         mean: &mut [f64],
         cov: Option<&mut [f64]>,
         scratch: &mut [f64],
-    ) -> Result<()> {
+    ) -> Result<FrameEvidence> {
         let frame = Frames::new(input_frame, self.regression.input().len())?;
         self.input_model
             .components()
             .log_density_into(frame, weights)?;
-        for (w, pi) in weights.iter_mut().zip(self.input_model.weights()) {
-            *w += if *pi > 0.0 {
-                pi.ln()
-            } else {
-                f64::NEG_INFINITY
-            };
-        }
-        let lse = phasekit_emission::linalg::log_sum_exp(weights);
-        if lse == f64::NEG_INFINITY {
-            weights.fill(0.0);
+        let lse = self.responsibilities_in_place(weights);
+        let rejected = lse == f64::NEG_INFINITY;
+        if rejected {
+            // Taken as not observed: the outputs' marginals. (This exceptional
+            // path builds the conditionals of the all-missing pattern, allocating.)
+            let nothing = vec![f64::NAN; input_frame.len()];
+            self.regression
+                .mix_into(&nothing, weights, mean, cov, scratch)?;
         } else {
-            weights.iter_mut().for_each(|w| *w = (*w - lse).exp());
+            self.regression
+                .mix_into(input_frame, weights, mean, cov, scratch)?;
         }
-        self.regression
-            .mix_into(input_frame, weights, mean, cov, scratch)
+        Ok(FrameEvidence {
+            log_predictive: lse,
+            rejected,
+        })
     }
+}
+
+/// A copy of `frames` with the frames `drop` (sorted) set to missing (NaN).
+fn without_frames(frames: Frames<'_>, drop: &[usize]) -> Vec<f64> {
+    let d = frames.dim();
+    let mut out = frames.as_slice().to_vec();
+    for &t in drop {
+        out[t * d..(t + 1) * d].fill(f64::NAN);
+    }
+    out
 }
 
 /// HMM-based GMR: weights are the forward variable `h_t` of the input-marginal HMM,
@@ -387,10 +516,48 @@ impl HmmRegression {
 
     /// Predicts a whole sequence (input dims only, in `input` order), causally:
     /// frame `t` uses `x^i_{1:t}` only.
+    ///
+    /// A frame that no state the belief allows can explain is rejected (see the
+    /// module documentation): the frames are then filtered one by one with the
+    /// online filter, which agrees with the batch forward pass to the last bit,
+    /// so every other frame is predicted exactly as with that frame missing.
     pub fn predict(&self, input_frames: Frames<'_>, with_covariance: bool) -> Result<Prediction> {
         let forward = self.input_model.forward(input_frames)?;
-        self.regression
-            .mix_sequence(input_frames, forward.filtered().to_vec(), with_covariance)
+        if forward
+            .log_normalisers()
+            .iter()
+            .all(|l| *l > f64::NEG_INFINITY)
+        {
+            return self.regression.mix_sequence(
+                input_frames,
+                forward.filtered().to_vec(),
+                with_covariance,
+                forward.log_normalisers().to_vec(),
+                Vec::new(),
+            );
+        }
+        let (k, d) = (self.regression.n_states(), input_frames.dim());
+        let mut filter = self.input_model.filter();
+        let nothing = vec![f64::NAN; d];
+        let mut weights = Vec::with_capacity(input_frames.len() * k);
+        let mut log_predictive = Vec::with_capacity(input_frames.len());
+        let mut rejected = Vec::new();
+        for (t, x) in input_frames.iter().enumerate() {
+            let e = filter_step(&mut filter, x, &nothing)?;
+            if e.rejected {
+                rejected.push(t);
+            }
+            log_predictive.push(e.log_predictive);
+            weights.extend_from_slice(filter.belief());
+        }
+        let inputs = without_frames(input_frames, &rejected);
+        self.regression.mix_sequence(
+            Frames::new(&inputs, d)?,
+            weights,
+            with_covariance,
+            log_predictive,
+            rejected,
+        )
     }
 
     /// A frame-by-frame predictor for a control loop.
@@ -398,56 +565,101 @@ impl HmmRegression {
         let (k, o) = (self.regression.n_states(), self.regression.n_out());
         OnlineRegression {
             filter: self.input_model.filter(),
+            nothing: vec![f64::NAN; self.regression.input().len()],
             regression: self.regression.clone(),
             patterns: PatternRegressions::default(),
             mean: vec![0.0; o],
             covariance: vec![0.0; o * o],
             scratch: vec![0.0; k * o],
+            evidence: FrameEvidence::NONE,
         }
+    }
+}
+
+/// One step of the forward filter with rejection: a frame impossible under
+/// every state the belief allows is replaced by `nothing` (every input
+/// missing), so that the belief takes its transition step only. The log
+/// predictive density is the increment of the filter's running
+/// log-likelihood (exact to the rounding of that sum).
+fn filter_step(
+    filter: &mut ForwardFilter<Gaussian>,
+    x: &[f64],
+    nothing: &[f64],
+) -> Result<FrameEvidence> {
+    let before = filter.log_likelihood();
+    match filter.step(x) {
+        Ok(_) => Ok(FrameEvidence {
+            log_predictive: filter.log_likelihood() - before,
+            rejected: false,
+        }),
+        Err(HmmError::ImpossibleSequence { .. }) => {
+            // The belief is unchanged by the refused frame: step on nothing observed.
+            filter.step(nothing)?;
+            Ok(FrameEvidence {
+                log_predictive: f64::NEG_INFINITY,
+                rejected: true,
+            })
+        }
+        Err(e) => Err(e.into()),
     }
 }
 
 /// Online HMM-GMR: one input frame in, the predicted output (mean and
 /// covariance) out; no allocation per frame (a frame with missing inputs, NaN,
 /// builds its pattern's conditionals the first time that pattern is seen).
+///
+/// A frame of the wrong length or with an infinite value is an error and
+/// leaves the belief unchanged; a frame that no state explains is rejected
+/// (taken as not observed, see the module documentation) and reported by
+/// [`OnlineRegression::evidence`].
 #[derive(Debug, Clone)]
 pub struct OnlineRegression {
     filter: ForwardFilter<Gaussian>,
     regression: Regression,
     patterns: PatternRegressions,
+    /// An input frame with nothing observed.
+    nothing: Vec<f64>,
     mean: Vec<f64>,
     covariance: Vec<f64>,
     scratch: Vec<f64>,
+    evidence: FrameEvidence,
 }
 
 impl OnlineRegression {
     /// Takes input frame `x^i_t`, updates the belief and returns the predicted output mean.
     pub fn step(&mut self, input_frame: &[f64]) -> Result<&[f64]> {
-        let h = self.filter.step(input_frame)?;
-        self.patterns.mix(
-            &self.regression,
-            input_frame,
-            h,
-            &mut self.mean,
-            None,
-            &mut self.scratch,
-        )?;
-        Ok(&self.mean)
+        self.step_inner(input_frame, false)
     }
 
     /// Like [`OnlineRegression::step`], also computing the predictive covariance
     /// (read it with [`OnlineRegression::covariance`]).
     pub fn step_with_covariance(&mut self, input_frame: &[f64]) -> Result<&[f64]> {
-        let h = self.filter.step(input_frame)?;
+        self.step_inner(input_frame, true)
+    }
+
+    fn step_inner(&mut self, input_frame: &[f64], with_covariance: bool) -> Result<&[f64]> {
+        let evidence = filter_step(&mut self.filter, input_frame, &self.nothing)?;
+        let x = if evidence.rejected {
+            &self.nothing[..]
+        } else {
+            input_frame
+        };
         self.patterns.mix(
             &self.regression,
-            input_frame,
-            h,
+            x,
+            self.filter.belief(),
             &mut self.mean,
-            Some(&mut self.covariance),
+            with_covariance.then_some(&mut self.covariance[..]),
             &mut self.scratch,
         )?;
+        self.evidence = evidence;
         Ok(&self.mean)
+    }
+
+    /// What the last step's frame told about its inputs: its log predictive
+    /// density and whether it was rejected.
+    pub fn evidence(&self) -> FrameEvidence {
+        self.evidence
     }
 
     /// The predictive covariance of the last [`OnlineRegression::step_with_covariance`], `O × O`.
@@ -473,5 +685,6 @@ impl OnlineRegression {
     /// Starts a new sequence.
     pub fn reset(&mut self) {
         self.filter.reset();
+        self.evidence = FrameEvidence::NONE;
     }
 }

@@ -8,13 +8,12 @@
 use crate::error::{HmmError, Result};
 use crate::inference::ForwardCore;
 use crate::model::Hmm;
-use phasekit_emission::{Emission, EmissionError, Frames};
+use phasekit_emission::{Emission, EmissionError, Frames, Marginal};
 
 /// Incremental forward filter over a (possibly marginal) HMM.
 #[derive(Debug, Clone)]
 pub struct ForwardFilter<E: Emission> {
     hmm: Hmm<E>,
-    marginals: Marginals<E>,
     belief: Vec<f64>,
     core: ForwardCore,
     log_b: Vec<f64>,
@@ -34,14 +33,8 @@ impl<E: Emission> ForwardFilter<E> {
             scratch: vec![0.0; s],
             log_likelihood: 0.0,
             frames: 0,
-            marginals: Marginals::default(),
             hmm,
         }
-    }
-
-    /// A filter over the marginal of `hmm` on the dimensions `dims` (e.g. the human's).
-    pub fn on_dims(hmm: &Hmm<E>, dims: &[usize]) -> Result<Self> {
-        Ok(Self::new(hmm.marginal(dims)?))
     }
 
     /// The model the filter runs on.
@@ -66,8 +59,11 @@ impl<E: Emission> ForwardFilter<E> {
             }
         })?;
         self.hmm.emission.check_frames(frames)?;
-        self.marginals
-            .log_density_into(&self.hmm.emission, frames, &mut self.log_b)?;
+        // Every emission evaluates a frame with missing values (NaN) on the
+        // marginal of its observed values (the rule of `Emission`).
+        self.hmm
+            .emission
+            .log_density_into(frames, &mut self.log_b)?;
         let lc = self.core.step(&self.hmm, &self.log_b, &mut self.scratch);
         if lc > f64::NEG_INFINITY {
             std::mem::swap(&mut self.belief, &mut self.scratch);
@@ -114,60 +110,9 @@ impl<E: Emission> Hmm<E> {
     }
 }
 
-/// Emission marginals on the observed dims of frames with missing values
-/// (NaN), cached by missing pattern, so that a marker that stays dropped costs
-/// one marginal model, not one per frame: `log b_i(x_o)` is the marginal's
-/// log-density of the observed values, which are complete.
-#[derive(Debug, Clone)]
-struct Marginals<E> {
-    by_pattern: std::collections::HashMap<Vec<bool>, E>,
-    key: Vec<bool>,
-    dims: Vec<usize>,
-    observed: Vec<f64>,
-}
-
-impl<E> Default for Marginals<E> {
-    fn default() -> Self {
-        Marginals {
-            by_pattern: std::collections::HashMap::new(),
-            key: Vec::new(),
-            dims: Vec::new(),
-            observed: Vec::new(),
-        }
-    }
-}
-
-/// Patterns held before the cache is emptied (bounds its memory).
-const PATTERNS: usize = 1024;
-
-impl<E: Emission> Marginals<E> {
-    /// `log b_i(x)` of one frame into `out`, on the observed dims' marginal
-    /// when some values are missing (0 for every state when none is observed).
-    fn log_density_into(&mut self, emission: &E, frame: Frames<'_>, out: &mut [f64]) -> Result<()> {
-        if !frame.has_missing() {
-            return Ok(emission.log_density_into(frame, out)?);
-        }
-        let x = frame.as_slice();
-        self.key.clear();
-        self.key.extend(x.iter().map(|v| v.is_nan()));
-        self.dims.clear();
-        self.dims.extend((0..x.len()).filter(|&k| !x[k].is_nan()));
-        if self.dims.is_empty() {
-            out.fill(0.0);
-            return Ok(());
-        }
-        if !self.by_pattern.contains_key(self.key.as_slice()) {
-            if self.by_pattern.len() >= PATTERNS {
-                self.by_pattern.clear();
-            }
-            let m = emission.marginal(&self.dims)?;
-            self.by_pattern.insert(self.key.clone(), m);
-        }
-        self.observed.clear();
-        self.observed.extend(self.dims.iter().map(|&k| x[k]));
-        let m = &self.by_pattern[self.key.as_slice()];
-        let xo = Frames::new(&self.observed, self.dims.len())?;
-        m.check_frames(xo)?;
-        Ok(m.log_density_into(xo, out)?)
+impl<E: Marginal> ForwardFilter<E> {
+    /// A filter over the marginal of `hmm` on the dimensions `dims` (e.g. the human's).
+    pub fn on_dims(hmm: &Hmm<E>, dims: &[usize]) -> Result<Self> {
+        Ok(Self::new(hmm.marginal(dims)?))
     }
 }

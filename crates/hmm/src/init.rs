@@ -1,14 +1,14 @@
 //! Initial parameters for Baum-Welch.
 //!
 //! Every initialisation assigns frames to states (hard or soft), accumulates the
-//! emission statistics with those weights and runs one emission M-step
-//! ([`fit_weighted`], which iterates that step when values are missing), so it
-//! works for any [`Emission`] without knowing its parameters.
+//! emission's own initialisation from those weights ([`Emission::initialise`]:
+//! by default one accumulation and one M-step, iterated when values are
+//! missing), so it works for any [`Emission`] without knowing its parameters.
 
 use crate::error::{HmmError, Result};
 use crate::model::Hmm;
 use phasekit_emission::kmeans::{kmeans, Seeding};
-use phasekit_emission::{fit_weighted, Emission, Regularisation, SequenceSet};
+use phasekit_emission::{Emission, Regularisation, SequenceSet};
 use rand::Rng;
 use serde::{Deserialize, Serialize};
 
@@ -52,11 +52,12 @@ pub fn kbins_edges(len: usize, n_states: usize) -> Vec<usize> {
         .collect()
 }
 
-fn emission_from_weights<E: Emission>(
+fn emission_from_weights<E: Emission, R: Rng + ?Sized>(
     template: &E,
     data: &SequenceSet,
     weights: &[Vec<f64>],
     reg: &Regularisation,
+    rng: &mut R,
 ) -> Result<E> {
     let s = template.n_states();
     let mut per_state = vec![0.0; s];
@@ -75,7 +76,7 @@ fn emission_from_weights<E: Emission>(
         )));
     }
     let parts: Vec<_> = data.iter().zip(weights).map(|(f, w)| (f, &w[..])).collect();
-    let (emission, _) = fit_weighted(template, &parts, reg)?;
+    let (emission, _) = template.initialise(&parts, reg, rng)?;
     Ok(emission)
 }
 
@@ -118,7 +119,7 @@ pub fn initialise<E: Emission, R: Rng + ?Sized>(
                     w
                 })
                 .collect();
-            let emission = emission_from_weights(template, data, &weights, reg)?;
+            let emission = emission_from_weights(template, data, &weights, reg, rng)?;
             let mean_len = data.total_frames() as f64 / data.len() as f64;
             // Sequences shorter on average than the number of states would make
             // `a_ii = 1 − S/T̄` negative: leave every state after one frame then.
@@ -151,7 +152,7 @@ pub fn initialise<E: Emission, R: Rng + ?Sized>(
                     w
                 })
                 .collect();
-            let emission = emission_from_weights(template, data, &weights, reg)?;
+            let emission = emission_from_weights(template, data, &weights, reg, rng)?;
             Hmm::new(
                 vec![1.0 / s as f64; s],
                 vec![1.0 / s as f64; s * s],
@@ -170,7 +171,7 @@ pub fn initialise<E: Emission, R: Rng + ?Sized>(
             let weights: Vec<Vec<f64>> = data.lengths().map(|len| random_rows(len)).collect();
             let start = random_rows(1);
             let transition = random_rows(s);
-            let emission = emission_from_weights(template, data, &weights, reg)?;
+            let emission = emission_from_weights(template, data, &weights, reg, rng)?;
             Hmm::new(start, transition, emission)
         }
     }

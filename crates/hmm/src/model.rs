@@ -1,7 +1,7 @@
 //! The HMM parameters `λ = (π, A, B)` and what follows from them directly.
 
 use crate::error::{HmmError, Result};
-use phasekit_emission::{Emission, Frames, SequenceSet};
+use phasekit_emission::{Emission, Frames, Marginal, SequenceSet};
 use rand::Rng;
 use serde::{Deserialize, Serialize};
 
@@ -176,17 +176,6 @@ impl<E: Emission> Hmm<E> {
         (self.start, self.transition, self.emission)
     }
 
-    /// The same chain with emissions restricted to the dimensions `dims`:
-    /// `b_i(x_dims) = ∫ b_i(x) dx_rest`. Used to run a joint human–robot model
-    /// on the human's dimensions only.
-    pub fn marginal(&self, dims: &[usize]) -> Result<Self> {
-        Hmm::new(
-            self.start.clone(),
-            self.transition.clone(),
-            self.emission.marginal(dims)?,
-        )
-    }
-
     /// Validates a sequence against the model: non-empty, right dimension, in the emission's support.
     pub fn check_sequence(&self, seq: Frames<'_>) -> Result<()> {
         if seq.is_empty() {
@@ -271,5 +260,18 @@ impl<E: Emission> Hmm<E> {
                 .sample_into(z, rng, &mut frames[t * d..(t + 1) * d])?;
         }
         Ok((frames, states))
+    }
+}
+
+impl<E: Marginal> Hmm<E> {
+    /// The same chain with emissions restricted to the dimensions `dims`:
+    /// `b_i(x_dims) = ∫ b_i(x) dx_rest`. Used to run a joint human–robot model
+    /// on the human's dimensions only.
+    pub fn marginal(&self, dims: &[usize]) -> Result<Self> {
+        Hmm::new(
+            self.start.clone(),
+            self.transition.clone(),
+            self.emission.marginal(dims)?,
+        )
     }
 }

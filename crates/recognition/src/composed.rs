@@ -187,6 +187,12 @@ impl ComposedRecogniser {
         self.with_covariance.then(|| self.online.covariance())
     }
 
+    /// Whether the last frame was impossible under every state (a glitch, e.g.
+    /// `1e200`): the GMR took it as not observed.
+    pub fn frame_rejected(&self) -> bool {
+        self.online.evidence().rejected
+    }
+
     /// `log p(o¹_{1:t})` under the composed HMM.
     pub fn log_likelihood(&self) -> f64 {
         self.online.log_likelihood()

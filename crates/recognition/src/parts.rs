@@ -56,6 +56,8 @@ pub struct ActionTrack {
     /// predictor's own: the recognition model's, or for a static GMR the
     /// mixture as an HMM on the human's dims.
     filter: Option<ForwardFilter<Gaussian>>,
+    /// A human frame with nothing observed (what a rejected frame becomes).
+    nothing: Vec<f64>,
     mean: Vec<f64>,
     with_covariance: bool,
 }
@@ -81,21 +83,39 @@ impl ActionTrack {
         Ok(ActionTrack {
             online,
             filter,
+            nothing: vec![f64::NAN; roles.human.len()],
             mean: vec![0.0; roles.robot.len()],
             with_covariance,
         })
     }
 
-    /// Takes one human frame (the human's features, NaN = missing). On an error
-    /// (the frame is impossible under the model) the action should be given
-    /// up until the next reset.
-    pub fn step(&mut self, human: &[f64]) -> Result<()> {
+    /// Takes one human frame (the human's features, NaN = missing) and returns
+    /// whether the likelihood model found it impossible (density zero under
+    /// every state, e.g. a glitch of `1e200`). Such a frame is *rejected*, as
+    /// the GMR rejects it (`phasekit_gmr`): taken as not observed, so the
+    /// filter and the likelihood stay usable; the caller decides what it means
+    /// for the action. An error (a frame of the wrong length) changes nothing
+    /// useful: the action should be given up until the next reset.
+    pub fn step(&mut self, human: &[f64]) -> Result<bool> {
         let m = self.online.step(human, self.with_covariance)?;
         self.mean.copy_from_slice(m);
-        if let Some(f) = &mut self.filter {
-            f.step(human)?;
+        match &mut self.filter {
+            Some(f) => match f.step(human) {
+                Ok(_) => Ok(false),
+                Err(phasekit_hmm::HmmError::ImpossibleSequence { .. }) => {
+                    // The belief is unchanged by the refused frame: step on nothing observed.
+                    f.step(&self.nothing)?;
+                    Ok(true)
+                }
+                Err(e) => Err(e.into()),
+            },
+            None => Ok(match &self.online {
+                OnlinePredictor::Hmm(r) => r.evidence().rejected,
+                OnlinePredictor::Gated { base, .. } => base.evidence().rejected,
+                // A static GMR's track always has its filter (see `new`).
+                OnlinePredictor::Gmm { .. } => false,
+            }),
         }
-        Ok(())
     }
 
     /// `log p(o¹_{1:t} | λ_a)` of the human frames since the last reset.

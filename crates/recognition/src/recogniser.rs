@@ -214,6 +214,10 @@ pub struct Recogniser {
     end_states: Vec<Vec<usize>>,
     decision: Decision,
     rejected: bool,
+    /// The last frame was impossible under every action: taken as not observed.
+    frame_rejected: bool,
+    /// A human frame with nothing observed.
+    nothing: Vec<f64>,
     statistics: (f64, f64),
     frames: usize,
     pending_reset: bool,
@@ -324,6 +328,8 @@ impl Recogniser {
             end_states,
             decision: Decision::Unknown,
             rejected: false,
+            frame_rejected: false,
+            nothing: vec![f64::NAN; roles.human.len()],
             statistics: (f64::NAN, f64::NAN),
             frames: 0,
             pending_reset: false,
@@ -335,14 +341,23 @@ impl Recogniser {
     }
 
     /// Takes one human frame (the human's features as the library's models see
-    /// them; NaN = missing) and returns the decision. An impossible frame (zero
-    /// probability under every action) is an error that leaves everything as it was.
+    /// them; NaN = missing) and returns the decision. A frame impossible
+    /// (zero probability) under every action is taken as not observed and
+    /// reported by [`Recogniser::frame_rejected`]; under some actions only, it
+    /// makes them impossible until the next reset. A frame of the wrong length
+    /// is an error that leaves everything as it was.
     pub fn step(&mut self, human: &[f64]) -> Result<Decision> {
         check_frame("human frame", human, self.n_human)?;
         if self.pending_reset {
             self.reset();
         }
-        let mut any = false;
+        // A track fails on an error, or rejects a frame its model finds
+        // impossible (taken as not observed). A frame every action rejects is
+        // a glitch: taken as not observed by all (as a single model's stream
+        // does). A frame only some reject makes those impossible (p(a | o) = 0)
+        // until the next reset.
+        let (mut any, mut accepted) = (false, false);
+        let mut glitch = true;
         for ((track, alive), failed) in self
             .tracks
             .iter_mut()
@@ -350,20 +365,31 @@ impl Recogniser {
             .zip(&mut self.failed)
         {
             if *alive {
-                *failed = track.step(human).is_err();
-                any |= !*failed;
+                let r = track.step(human);
+                *failed = !matches!(r, Ok(false));
+                any |= r.is_ok();
+                accepted |= !*failed;
+                glitch &= matches!(r, Ok(true));
             }
         }
         if !any {
             self.failed.fill(false);
             return Err(RecognitionError::ImpossibleFrame { frame: self.frames });
         }
+        self.frame_rejected = glitch && !accepted;
         for (alive, failed) in self.alive.iter_mut().zip(&mut self.failed) {
-            *alive &= !*failed;
+            if !self.frame_rejected {
+                *alive &= !*failed;
+            }
             *failed = false;
         }
         if let Some(f) = &mut self.threshold {
-            self.threshold_dead = self.threshold_dead || f.step(human).is_err();
+            let x = if self.frame_rejected {
+                &self.nothing[..]
+            } else {
+                human
+            };
+            self.threshold_dead = self.threshold_dead || f.step(x).is_err();
         }
         self.frames += 1;
         let o = self.n_out;
@@ -389,7 +415,9 @@ impl Recogniser {
             .iter()
             .copied()
             .fold(f64::NEG_INFINITY, f64::max);
-        self.observed += human.iter().filter(|v| !v.is_nan()).count();
+        if !self.frame_rejected {
+            self.observed += human.iter().filter(|v| !v.is_nan()).count();
+        }
         let n = self.observed as f64 / self.n_human as f64;
         let versus = match &self.threshold {
             None => f64::NAN,
@@ -471,6 +499,7 @@ impl Recogniser {
         self.robot_covariance.copy_from_slice(&self.rest_covariance);
         self.decision = Decision::Action(argmax(&self.prior));
         self.rejected = false;
+        self.frame_rejected = false;
         self.statistics = (f64::NAN, f64::NAN);
         self.frames = 0;
         self.pending_reset = false;
@@ -514,6 +543,12 @@ impl Recogniser {
     /// Whether the last frame's motion was rejected as unknown.
     pub fn rejected(&self) -> bool {
         self.rejected
+    }
+
+    /// Whether the last frame was impossible under every action (a glitch,
+    /// e.g. `1e200`): it was taken as not observed.
+    pub fn frame_rejected(&self) -> bool {
+        self.frame_rejected
     }
 
     /// The rejection statistics of the last frame: the best action's

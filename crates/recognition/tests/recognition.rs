@@ -468,6 +468,42 @@ fn missing_values_are_recognised_on_what_is_observed() {
     assert!(d[40..].iter().all(|x| *x != Decision::Unknown));
 }
 
+#[test]
+fn a_glitch_no_action_explains_is_taken_as_not_observed() {
+    // A frame of 1e200 has density zero under every state of every action
+    // (its squared distance overflows): the recognisers take it as not
+    // observed, say so, and go on recognising; a per-action recogniser does
+    // not give up every action, nor the threshold model.
+    let lib = library();
+    let joint = &demos(Kind::Wave, 1, 12)[0];
+    let mut h = human(joint);
+    let glitch = 30;
+    h[glitch * 6..glitch * 6 + 6].fill(1e200);
+    let mut s = settings(Rejection::Either, PredictionMode::Mixture);
+    s.both_statistics = true;
+    let mut r = Recogniser::new(lib, s).unwrap();
+    r.reset();
+    for (t, x) in h.chunks_exact(6).enumerate() {
+        r.step(x).unwrap();
+        assert_eq!(r.frame_rejected(), t == glitch, "frame {t}");
+        assert!(r.robot().iter().all(|v| v.is_finite()));
+        assert!(
+            r.log_likelihoods().iter().all(|l| l.is_finite()),
+            "frame {t}"
+        );
+    }
+    assert_eq!(r.decision(), Decision::Action(2));
+    let mut c = ComposedRecogniser::new(lib, false).unwrap();
+    for (t, x) in h.chunks_exact(6).enumerate() {
+        c.step(x).unwrap();
+        assert_eq!(c.frame_rejected(), t == glitch, "frame {t}");
+        assert!(c.robot().iter().all(|v| v.is_finite()));
+    }
+    // The demonstration ends at rest; of the actions, wave is the most probable.
+    let p = c.posterior();
+    assert!(p.iter().all(|&q| q <= p[2]), "{p:?}");
+}
+
 /// Decisions on every human frame, from a fresh start.
 fn run_frames(r: &mut Recogniser, human: &[f64]) -> Vec<Decision> {
     r.reset();

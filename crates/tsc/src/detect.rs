@@ -8,7 +8,7 @@
 //! transition segments.
 
 use crate::error::Result;
-use phasekit_emission::{Emission, Frames};
+use phasekit_emission::{Emission, Frames, Marginal};
 use phasekit_gmm::Gmm;
 use phasekit_hmm::Hmm;
 use std::borrow::Cow;
@@ -75,7 +75,9 @@ impl<'a, E: Emission> FilterLabeller<'a, E> {
             dims: None,
         }
     }
+}
 
+impl<E: Marginal> FilterLabeller<'_, E> {
     /// Filtered argmax on the marginal of `hmm` on `dims` (e.g. the human's).
     pub fn marginal(hmm: &Hmm<E>, dims: &[usize]) -> Result<Self> {
         Ok(FilterLabeller {

@@ -26,7 +26,7 @@ pub mod tsc_hmm;
 pub use error::{Result, TscError};
 pub use krishnan::{KrishnanSettings, KrishnanTsc, Segmentation, TimeClustering};
 pub use preset::{
-    FitSummary, GmmSettings, Method, Model, OnlinePredictor, Predictor, PresetOptions,
+    FitStop, FitSummary, GmmSettings, Method, Model, OnlinePredictor, Predictor, PresetOptions,
     DEFAULT_COMPOSITION, PRESETS,
 };
 pub use select::Selector;

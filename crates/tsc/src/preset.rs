@@ -550,8 +550,11 @@ pub struct FitSummary {
     pub iterations: usize,
     /// Its log-likelihood (summed over sequences or frames) at every E-step.
     pub log_likelihood: Vec<f64>,
-    /// Whether its tolerance test stopped it.
-    pub converged: bool,
+    /// Why it stopped. Serialised as `"stop": "converged" | "max-iter" |
+    /// "log-likelihood fell"`; summaries written with the earlier `converged` and
+    /// `stopped_on_decrease` fields are read as the same reason.
+    #[serde(flatten, with = "stop_fields")]
+    pub stop: FitStop,
     /// Wall-clock seconds of the whole fit.
     pub fit_seconds: f64,
     /// Largest diagonal jitter any M-step needed.
@@ -582,14 +585,71 @@ pub struct FitSummary {
     /// Values of the training data that were missing (NaN, an empty cell).
     #[serde(default)]
     pub missing_values: usize,
-    /// The run stopped because the log-likelihood fell (an added-diagonal
-    /// regularisation makes EM non-monotone; the protocol stops there).
-    #[serde(default)]
-    pub stopped_on_decrease: bool,
     /// What looks wrong with the training data for this model (set by callers
     /// that know the data's meaning, e.g. the command line).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub warnings: Vec<String>,
+}
+
+/// Why EM stopped.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum FitStop {
+    /// The gain of the log-likelihood fell below the tolerance.
+    #[serde(rename = "converged")]
+    Converged,
+    /// The iteration cap was reached first.
+    #[serde(rename = "max-iter")]
+    MaxIter,
+    /// The log-likelihood fell: the regularisation added after every M-step makes
+    /// EM non-monotone, and the protocol's tolerance test stops at the first fall.
+    #[serde(rename = "log-likelihood fell")]
+    LogLikelihoodFell,
+}
+
+impl FitStop {
+    /// The reason from the tolerance test's verdict and the log-likelihood trace.
+    pub fn from_trace(converged: bool, log_likelihood: &[f64]) -> Self {
+        match (converged, log_likelihood) {
+            (false, _) => FitStop::MaxIter,
+            (true, [.., a, b]) if b < a => FitStop::LogLikelihoodFell,
+            (true, _) => FitStop::Converged,
+        }
+    }
+}
+
+/// `stop` as its own field, read also from the `converged` / `stopped_on_decrease`
+/// pair of summaries written before it existed.
+mod stop_fields {
+    use super::FitStop;
+    use serde::{Deserialize, Deserializer, Serialize, Serializer};
+
+    #[derive(Serialize)]
+    struct Out {
+        stop: FitStop,
+    }
+
+    #[derive(Deserialize)]
+    struct In {
+        stop: Option<FitStop>,
+        converged: Option<bool>,
+        #[serde(default)]
+        stopped_on_decrease: bool,
+    }
+
+    pub fn serialize<S: Serializer>(stop: &FitStop, s: S) -> Result<S::Ok, S::Error> {
+        Out { stop: *stop }.serialize(s)
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<FitStop, D::Error> {
+        let i = In::deserialize(d)?;
+        match (i.stop, i.converged) {
+            (Some(stop), _) => Ok(stop),
+            (None, Some(false)) => Ok(FitStop::MaxIter),
+            (None, Some(true)) if i.stopped_on_decrease => Ok(FitStop::LogLikelihoodFell),
+            (None, Some(true)) => Ok(FitStop::Converged),
+            (None, None) => Err(serde::de::Error::missing_field("stop")),
+        }
+    }
 }
 
 impl FitSummary {
@@ -656,7 +716,7 @@ impl FitSummary {
         FitSummary {
             iterations,
             log_likelihood: log_likelihood.to_vec(),
-            converged,
+            stop: FitStop::from_trace(converged, log_likelihood),
             fit_seconds,
             jitter: m_steps.iter().map(|m| m.total_jitter()).fold(0.0, f64::max),
             transition_segments: None,
@@ -667,7 +727,6 @@ impl FitSummary {
             empty_states: empty,
             jittered_states: jittered,
             missing_values: 0,
-            stopped_on_decrease: converged && matches!(log_likelihood, [.., a, b] if b < a),
             warnings: Vec::new(),
         }
     }

@@ -3,12 +3,14 @@
 use super::fit::fit_tables;
 use crate::bail;
 use crate::cli::DemoArgs;
-use crate::data::{read_table, FeatureSpec, Table, Velocity};
-use crate::error::Result;
+use crate::data::{read_table, Action, FeatureSpec, Table, Velocity};
+use crate::error::{CliError, Result};
+use crate::experiment::{evaluate_action, paired, parse_method, Protocol};
 use crate::model_file::ModelFile;
 use crate::output;
 use crate::pipeline::{joint_features_raw, predict_table, predictor, segment_table};
 use crate::plot::{default_plane, prediction_svg, segmentation_svg, states_svg};
+use crate::units::{mean_pm, sig4, Unit};
 use phasekit_tsc::synthetic::{self, Interaction};
 use phasekit_tsc::PresetOptions;
 use std::fmt::Write as _;
@@ -124,11 +126,11 @@ fn learned_table(mf: &ModelFile, tests: &[Table], truth: &[Interaction]) -> Resu
     let mut out = String::from(
         "| state | human hand x, y, z (cm) | robot hand x, y, z (cm) | expected stay (frames) | true phases of its test frames |\n|---:|---|---|---:|---|\n",
     );
-    for i in 0..s {
+    for (i, votes) in votes.iter().enumerate() {
         let stay = 1.0 / (1.0 - h.transition()[i * s + i]).max(1e-12);
-        let total: usize = votes[i].iter().sum();
+        let total: usize = votes.iter().sum();
         // Every phase with at least a fifth of the state's frames, largest first.
-        let mut shares: Vec<(usize, usize)> = votes[i]
+        let mut shares: Vec<(usize, usize)> = votes
             .iter()
             .copied()
             .enumerate()
@@ -169,14 +171,223 @@ fn constant_mse(train: &[Table], test: &[Table]) -> f64 {
     errs.iter().sum::<f64>() / errs.len() as f64
 }
 
+/// Most generated demonstrations of either kind: the demo is a showcase that runs in
+/// seconds (about 140 frames each; 1000 fit in well under a minute and 100 MB).
+pub const MAX_DEMONSTRATIONS: usize = 1000;
+
+/// The methods the demo compares, and their model files: the 4-state HMM, the
+/// TSC-HMM, and the 7-state HMM as the control with as many states as the
+/// TSC-HMM (a gain of the TSC-HMM over the 4-state HMM alone could be its extra states).
+pub const DEMO_METHODS: [(&str, &str); 3] = [
+    ("hmm", "hmm"),
+    ("hmm:states=7", "hmm7"),
+    (DEMO_TSC, "tsc-hmm"),
+];
+
+/// Names the demo writes into its folder: only these may be replaced by a new run.
+fn is_demo_output(name: &str) -> bool {
+    DEMO_METHODS
+        .iter()
+        .any(|(_, f)| name == format!("{f}.json"))
+        || ["data", "segmentation.svg", "prediction.svg", "states.svg"].contains(&name)
+}
+
+/// Whether `dir` can be replaced by a new demo: absent, empty, or an earlier demo's
+/// output (its files and a `data/` folder of `train_*`/`test_*` files only).
+fn check_replaceable(dir: &Path) -> Result<()> {
+    let Ok(meta) = std::fs::symlink_metadata(dir) else {
+        return Ok(());
+    };
+    let foreign = |what: String| {
+        CliError::new(format!(
+            "-o {}: {what}; the demo replaces only a folder it wrote itself: choose another folder",
+            dir.display()
+        ))
+    };
+    if !meta.is_dir() {
+        return Err(foreign("exists and is not a folder".into()));
+    }
+    let names = |d: &Path| -> Result<Vec<(String, bool)>> {
+        std::fs::read_dir(d)
+            .map_err(|e| CliError::new(format!("{}: cannot read folder: {e}", d.display())))?
+            .map(|e| {
+                let e = e.map_err(|e| CliError::new(format!("{}: {e}", d.display())))?;
+                let is_dir = e.file_type().is_ok_and(|t| t.is_dir());
+                Ok((e.file_name().to_string_lossy().into_owned(), is_dir))
+            })
+            .collect()
+    };
+    for (name, is_dir) in names(dir)? {
+        if !is_demo_output(&name) || (name == "data") != is_dir {
+            return Err(foreign(format!(
+                "holds `{name}`, which the demo does not write"
+            )));
+        }
+        if name == "data" {
+            for (f, sub) in names(&dir.join("data"))? {
+                let ours = !sub
+                    && (f.starts_with("train_") || f.starts_with("test_"))
+                    && f.ends_with(".csv");
+                if !ours {
+                    return Err(foreign(format!(
+                        "holds `data/{f}`, which the demo does not write"
+                    )));
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Puts the finished folder `tmp` at `dir`, replacing an earlier demo's folder
+/// there (checked by [`check_replaceable`]): nothing half-written is ever at `dir`.
+fn put_in_place(tmp: tempfile::TempDir, dir: &Path) -> Result<()> {
+    let cannot = |e: std::io::Error| CliError::new(format!("{}: cannot write: {e}", dir.display()));
+    if std::fs::symlink_metadata(dir).is_ok() {
+        check_replaceable(dir)?;
+        // Swap: the old folder moves aside, the new one in, then the old one goes.
+        let parent = tmp.path().parent().unwrap_or(Path::new("."));
+        let old = tempfile::Builder::new()
+            .prefix(".phasekit-demo-old")
+            .tempdir_in(parent)
+            .map_err(cannot)?;
+        let aside = old.path().join("old");
+        std::fs::rename(dir, &aside).map_err(cannot)?;
+        if let Err(e) = std::fs::rename(tmp.path(), dir) {
+            // Put the old folder back; the new one is removed with `tmp`.
+            let _ = std::fs::rename(&aside, dir);
+            return Err(cannot(e));
+        }
+        drop(old);
+    } else {
+        std::fs::rename(tmp.path(), dir).map_err(cannot)?;
+    }
+    // The folder now lives at `dir`: nothing left for the guard to remove.
+    let _ = tmp.keep();
+    Ok(())
+}
+
+/// How to call this executable in a printed command: `phasekit` when that name on
+/// the PATH is this executable, else its path (relative to the current folder when
+/// inside it, as `target/release/phasekit` after `cargo run --release`).
+pub fn command_name() -> String {
+    let Ok(exe) = std::env::current_exe().and_then(|e| e.canonicalize()) else {
+        return "phasekit".into();
+    };
+    let on_path = std::env::var_os("PATH").is_some_and(|p| {
+        std::env::split_paths(&p).any(|d| d.join("phasekit").canonicalize().is_ok_and(|c| c == exe))
+    });
+    if on_path {
+        return "phasekit".into();
+    }
+    let shown = std::env::current_dir()
+        .ok()
+        .and_then(|cwd| cwd.canonicalize().ok())
+        .and_then(|cwd| exe.strip_prefix(&cwd).ok().map(Path::to_path_buf))
+        .map(|rel| {
+            if rel.components().count() > 1 {
+                rel
+            } else {
+                Path::new(".").join(rel)
+            }
+        })
+        .unwrap_or(exe);
+    shell_word(&shown.to_string_lossy())
+}
+
+/// `s` quoted for a POSIX shell when it needs it.
+pub fn shell_word(s: &str) -> String {
+    let plain = !s.is_empty()
+        && s.chars()
+            .all(|c| c.is_ascii_alphanumeric() || "/._-+:,@%=".contains(c));
+    if plain {
+        s.to_string()
+    } else {
+        format!("'{}'", s.replace('\'', "'\\''"))
+    }
+}
+
+/// The comparison over `seeds` random training subsets (all but two demonstrations
+/// each, the protocol of `evaluate`): one fit can flatter a method, the spread over
+/// subsets and the paired comparison with the 7-state control say how much.
+fn over_seeds(
+    train: &[Table],
+    test: &[Table],
+    spec: &FeatureSpec,
+    options: &PresetOptions,
+    seeds: usize,
+) -> Result<String> {
+    let action = Action {
+        name: "demo".into(),
+        train: train.to_vec(),
+        test: test.to_vec(),
+    };
+    let methods = DEMO_METHODS
+        .iter()
+        .map(|(m, _)| parse_method(m, options).map_err(CliError::new))
+        .collect::<Result<Vec<_>>>()?;
+    let protocol = Protocol {
+        seeds,
+        ..Protocol::default()
+    };
+    let rows =
+        evaluate_action(&action, spec, &methods, &protocol, &|| {}).map_err(CliError::new)?;
+    let control = &rows[1];
+    let mut out = format!(
+        "\nOver {seeds} random training subsets (each all but two of the {} training demonstrations; the `evaluate` line below):\n\n\
+         | method | states | MSE (cm²), mean ± std | Δ MSE vs {c} | seeds won against {c} |\n|---|---:|---:|---:|---:|\n",
+        train.len(),
+        c = control.method
+    );
+    for (i, r) in rows.iter().enumerate() {
+        let (change, won) = match paired(r, control).filter(|_| i != 1) {
+            Some((c, w, _)) => (
+                format!("{:+.1} %", 100.0 * c),
+                format!("{:.0} %", 100.0 * w),
+            ),
+            None => ("–".into(), "–".into()),
+        };
+        let _ = writeln!(
+            out,
+            "| {} | {} | {} | {change} | {won} |",
+            r.method,
+            r.states,
+            mean_pm(r.mse_mean, r.mse_std, r.seeds > 1)
+        );
+    }
+    Ok(out)
+}
+
 /// Runs `phasekit demo`.
 pub fn run(a: &DemoArgs) -> Result<()> {
     if a.train < 2 || a.test < 1 {
         bail!("the demo needs at least 2 training and 1 test demonstrations");
     }
+    if a.train > MAX_DEMONSTRATIONS || a.test > MAX_DEMONSTRATIONS {
+        bail!(
+            "--train {} --test {}: the demo generates at most {MAX_DEMONSTRATIONS} demonstrations of each kind \
+             (it is a showcase that runs in seconds); for larger experiments generate data with \
+             phasekit_tsc::synthetic::generate and use `fit` and `evaluate`",
+            a.train,
+            a.test
+        );
+    }
     let clock = Instant::now();
     let dir = &a.output;
-    let data_dir = dir.join("data");
+    check_replaceable(dir)?;
+    // Everything is written into a temporary folder beside the target and moved
+    // into place when complete: a failure leaves no partial folder.
+    let parent = match dir.parent().filter(|p| !p.as_os_str().is_empty()) {
+        Some(p) => p.to_path_buf(),
+        None => std::path::PathBuf::from("."),
+    };
+    output::create_dir(&parent)?;
+    let tmp = tempfile::Builder::new()
+        .prefix(".phasekit-demo")
+        .tempdir_in(&parent)
+        .map_err(|e| CliError::new(format!("{}: cannot write: {e}", parent.display())))?;
+    let work = tmp.path().to_path_buf();
+    let data_dir = work.join("data");
     output::create_dir(&data_dir)?;
     let demos = synthetic::generate(a.train + a.test, a.seed);
     let (train_demos, test_demos) = demos.split_at(a.train);
@@ -215,13 +426,12 @@ pub fn run(a: &DemoArgs) -> Result<()> {
     );
     let mut rows = Vec::new();
     let mut models = Vec::new();
-    for (method, file) in [("hmm", "hmm"), (DEMO_TSC, "tsc-hmm")] {
+    for (method, file) in DEMO_METHODS {
         let mf = fit_tables(&train, &spec, false, method, &options, false)?;
-        let path = dir.join(format!("{file}.json"));
-        mf.save(&path)?;
+        mf.save(&work.join(format!("{file}.json")))?;
         let s = score(&mf, &test, test_demos)?;
         rows.push((method, mf.n_states(), mf.fit.fit_seconds, s));
-        models.push((mf, path));
+        models.push((mf, dir.join(format!("{file}.json"))));
     }
     let base = constant_mse(&train, &test);
     let opt = |v: Option<f64>| v.map_or("–".to_string(), |v| format!("{v:.1}"));
@@ -229,15 +439,16 @@ pub fn run(a: &DemoArgs) -> Result<()> {
     let _ = writeln!(out, "|---|---:|---:|---:|---:|---:|---:|---:|");
     let _ = writeln!(
         out,
-        "| constant mean pose | – | {base:.2} | {:.2} | – | – | – | – |",
-        base.sqrt()
+        "| constant mean pose | – | {} | {} | – | – | – | – |",
+        sig4(base),
+        sig4(base.sqrt())
     );
     for (m, states, secs, s) in &rows {
         let _ = writeln!(
             out,
-            "| {m} | {states} | {:.2} | {:.2} | {secs:.2} | {} | {} | {} |",
-            s.mse,
-            s.mse.sqrt(),
+            "| {m} | {states} | {} | {} | {secs:.2} | {} | {} | {} |",
+            sig4(s.mse),
+            sig4(s.mse.sqrt()),
             s.transitions,
             opt(s.boundary_to_transition),
             opt(s.boundary_to_state_change)
@@ -245,35 +456,49 @@ pub fn run(a: &DemoArgs) -> Result<()> {
     }
     let _ = writeln!(
         out,
-        "\nMSE: squared error of the robot's hand position per frame, mean over the {} test demonstrations' frames, predicted\ncausally from the human's hand alone. Boundaries: the 4 true phase changes of each test demonstration; distance in\nframes to the nearest transition frame found (TSC) and to the nearest change of Viterbi state.",
-        a.test
+        "\nMSE: squared error of the robot's hand position per frame, mean over the {} test demonstrations' frames, predicted\ncausally from the human's hand alone (one fit, seed {}; `evaluate` below repeats it over random training subsets).\nhmm:states=7 is the control for the TSC-HMM: as many states, no transition states; a gain of the TSC-HMM over the\n4-state HMM that the 7-state HMM also has comes from the number of states, not from transition states.\nBoundaries: the 4 true phase changes of each test demonstration; distance in frames to the nearest transition frame\nfound (TSC) and to the nearest change of Viterbi state.",
+        a.test, a.seed
     );
+    if a.seeds > 0 && a.train > 2 {
+        out += &over_seeds(&train, &test, &spec, &options, a.seeds)?;
+    }
     let _ = writeln!(
         out,
         "\nWhat the 4-state HMM learned (state means of both hands; expected stay 1/(1 − a_ii); the true phases of the test\nframes its Viterbi path gives to the state, those with at least 20 %):\n\n{}",
         learned_table(&models[0].0, &test, test_demos)?
     );
     // Plots with the TSC-HMM.
-    let (mf, model_path) = &models[1];
-    let seg_svg = dir.join("segmentation.svg");
-    let pred_svg = dir.join("prediction.svg");
-    let states_path = dir.join("states.svg");
-    output::write_string(&seg_svg, &segmentation_svg(mf, &test[0])?)?;
-    output::write_string(&pred_svg, &prediction_svg(mf, &test[0])?)?;
-    output::write_string(&states_path, &states_svg(mf, &train, default_plane(mf))?)?;
-    let d = dir.display();
-    let m = model_path.display();
+    let (mf, model_path) = &models[2];
+    let unit = Unit::default();
+    output::write_string(
+        &work.join("segmentation.svg"),
+        &segmentation_svg(mf, &test[0], &unit)?,
+    )?;
+    output::write_string(
+        &work.join("prediction.svg"),
+        &prediction_svg(mf, &test[0], &unit)?,
+    )?;
+    output::write_string(
+        &work.join("states.svg"),
+        &states_svg(mf, &train, default_plane(mf), &unit)?,
+    )?;
+    put_in_place(tmp, dir)?;
     let _ = writeln!(
         out,
-        "\nWrote to {d}/: data/ (train_*.csv, test_*.csv), hmm.json and tsc-hmm.json (model files), segmentation.svg,\nprediction.svg and states.svg (tsc-hmm on test_00 and the training data). Done in {:.1} s.\n",
+        "\nWrote to {}/: data/ (train_*.csv, test_*.csv), hmm.json, hmm7.json and tsc-hmm.json (model files),\nsegmentation.svg, prediction.svg and states.svg (tsc-hmm on test_00 and the training data). Done in {:.1} s.\n",
+        dir.display(),
         clock.elapsed().as_secs_f64()
     );
+    // Commands that work as printed: this executable's path unless it is on the PATH.
+    let p = command_name();
+    let d = shell_word(&dir.to_string_lossy());
+    let test_00 = shell_word(&dir.join("data").join("test_00.csv").to_string_lossy());
+    let m = shell_word(&model_path.to_string_lossy());
     let _ = writeln!(
         out,
-        "Next:\n  phasekit segment --model {m} --data {d}/data/test_00.csv\n  phasekit predict  --model {m} --data {d}/data/test_00.csv --covariance\n  \
-         cut -d, -f1-3 {d}/data/test_00.csv | phasekit stream --model {m}\n  phasekit fit --data {d}/data --method hmm:states=7 -o {d}/hmm7.json\n  \
-         phasekit evaluate --data {d}/data --methods hmm,hmm:states=7,{DEMO_TSC} --seeds 10\n  \
-         phasekit evaluate --data YOUR_DATA   # folders of train_*/test_* CSVs; see phasekit evaluate --help"
+        "Next (your own data: {p} evaluate --help):\n  {p} segment --model {m} --data {test_00}\n  {p} predict --model {m} --data {test_00} --covariance\n  \
+         cut -d, -f1-3 {test_00} | {p} stream --model {m}\n  \
+         {p} evaluate --data {d}/data --methods hmm,hmm:states=7,{DEMO_TSC} --seeds 10"
     );
     output::print_stdout(&out)
 }

@@ -9,6 +9,7 @@ use crate::experiment::{
     constant_mean_mse, evaluate_action, paired, parse_method, prepare, NamedMethod, Protocol, Row,
 };
 use crate::output;
+use crate::units::{mean_pm, sig4, Unit};
 use phasekit_tsc::PresetOptions;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
@@ -52,6 +53,8 @@ pub struct ProtocolReport {
     /// Seeds, training subset size, unit scale, standardisation.
     #[serde(flatten)]
     pub protocol: Protocol,
+    /// Name of the unit of the MSE (squared) and RMSE: data units × `unit_scale`.
+    pub unit: String,
     /// Columns and velocities.
     pub columns: FeatureSpec,
     /// Defaults of every method's settings.
@@ -70,29 +73,26 @@ pub struct Report {
 }
 
 /// The unit of the metric.
-pub fn unit(scale: f64) -> &'static str {
-    if scale == 100.0 {
-        "cm"
-    } else if scale == 1000.0 {
-        "mm"
-    } else if scale == 1.0 {
-        "data units"
-    } else {
-        "scaled units"
+pub fn unit_of(p: &ProtocolReport) -> Unit {
+    Unit {
+        name: p.unit.clone(),
+        scale: p.protocol.unit_scale,
     }
 }
 
-fn metric_text(spec: &FeatureSpec, p: &Protocol) -> String {
+fn metric_text(spec: &FeatureSpec, p: &Protocol, unit: &Unit) -> String {
     format!(
         "MSE: per frame, squared Euclidean error of the robot's position columns ({}; velocities excluded), \
-         scaled by unit_scale² = {}², averaged over all frames of all test demonstrations of an action \
-         ({}² for data in metres with unit_scale 100); RMSE = √MSE per seed; mean ± population std over seeds. \
+         scaled by unit_scale² = {}², averaged over all frames of all test demonstrations of an action, in {}; \
+         RMSE = √MSE per seed, in {}; mean ± population std over seeds, printed with at least four significant digits; \
+         a seed whose MSE is not finite (an overflow) is a failure. \
          Seed s trains on a random subset ({} training demonstrations, drawn with ChaCha8 from seed s). \
          paired_change = mean over seeds of (MSE − MSE_reference) / MSE_reference; paired_won = fraction of seeds with a lower MSE; the same against the second method in the *_second fields. \
          constant-mean predicts the mean robot position of all training demonstrations at every frame.{}",
         spec.robot.join(", "),
         p.unit_scale,
-        unit(p.unit_scale),
+        unit.squared(),
+        unit.name,
         p.train_size.map_or("all but two".to_string(), |n| n.to_string()),
         p.removal.map_or(String::new(), |r| format!(
             " Robustness run: {:.0} % of the selected values removed at random ({}) from every seed's training \
@@ -109,34 +109,29 @@ fn metric_text(spec: &FeatureSpec, p: &Protocol) -> String {
 }
 
 fn pm(m: f64, s: f64, seeds: usize) -> String {
-    if m.is_finite() && seeds <= 1 {
-        format!("{m:.2}")
-    } else if m.is_finite() {
-        format!("{m:.2} ± {s:.2}")
-    } else {
-        "–".into()
-    }
+    mean_pm(m, s, seeds > 1)
 }
 
 /// The Markdown table of a report.
 pub fn markdown(r: &Report) -> String {
-    let u = unit(r.protocol.protocol.unit_scale);
+    let unit = unit_of(&r.protocol);
+    let (u2, u) = (unit.squared(), &unit.name);
     let mut s = format!(
-        "| action | method | states | MSE ({u}²) | RMSE ({u}) | seeds | failures | fit (s) | predict (µs/frame) | Δ MSE vs {0} | seeds won | Δ MSE vs {1} | seeds won |\n|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+        "| action | method | states | MSE ({u2}) | RMSE ({u}) | seeds | failures | fit (s) | predict (µs/frame) | Δ MSE vs {0} | seeds won | Δ MSE vs {1} | seeds won |\n|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
         r.protocol.methods.first().map_or("first", |m| m.as_str()),
         r.protocol.methods.get(1).map_or("second", |m| m.as_str())
     );
     for x in &r.results {
         let row = &x.row;
         let (change, won) = match (x.paired_change, x.paired_won) {
-            (Some(c), Some(w)) if x.reference.as_deref() != Some(row.method.as_str()) => (
+            (Some(c), Some(w)) => (
                 format!("{:+.1} %", 100.0 * c),
                 format!("{:.0} %", 100.0 * w),
             ),
             _ => ("–".into(), "–".into()),
         };
         let (change2, won2) = match (x.paired_change_second, x.paired_won_second) {
-            (Some(c), Some(w)) if x.second_reference.as_deref() != Some(row.method.as_str()) => (
+            (Some(c), Some(w)) => (
                 format!("{:+.1} %", 100.0 * c),
                 format!("{:.0} %", 100.0 * w),
             ),
@@ -144,8 +139,11 @@ pub fn markdown(r: &Report) -> String {
         };
         if x.baseline {
             s.push_str(&format!(
-                "| {} | {} | – | {:.2} | {:.2} | – | – | – | – | – | – | – | – |\n",
-                row.action, row.method, row.mse_mean, row.rmse_mean
+                "| {} | {} | – | {} | {} | – | – | – | – | – | – | – | – |\n",
+                row.action,
+                row.method,
+                sig4(row.mse_mean),
+                sig4(row.rmse_mean)
             ));
         } else {
             // A method that failed on every seed has no time and no state count to show.
@@ -189,13 +187,14 @@ pub fn markdown_document(r: &Report) -> String {
 /// first method: `reference`, `paired_change`, `paired_won`, `paired_seeds`; against the
 /// second: `second_reference`, `paired_change_second`, `paired_won_second`).
 pub fn csv(r: &Report) -> String {
-    let mut s = String::from("action,method,states,mse_mean,mse_std,rmse_mean,rmse_std,seeds,failures,fit_seconds,predict_us_per_frame,paired_change,paired_won,baseline,reference,paired_seeds,second_reference,paired_change_second,paired_won_second\n");
+    let mut s = String::from("action,method,states,mse_mean,mse_std,rmse_mean,rmse_std,seeds,failures,fit_seconds,predict_us_per_frame,paired_change,paired_won,baseline,reference,paired_seeds,second_reference,paired_change_second,paired_won_second,unit\n");
+    let unit = output::csv_field(&unit_of(&r.protocol).name);
     let opt = |v: Option<f64>| v.map_or(String::new(), |v| v.to_string());
     let name = |v: &Option<String>| v.as_deref().map_or(String::new(), output::csv_field);
     for x in &r.results {
         let row = &x.row;
         s.push_str(&format!(
-            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{unit}\n",
             output::csv_field(&row.action),
             output::csv_field(&row.method),
             row.states,
@@ -272,7 +271,24 @@ fn runs(action: &Action, p: &Protocol) -> usize {
     }
 }
 
+/// Checks that an action has training demonstrations left for every seed's subset
+/// (the protocol trains on all but two), with a message that says what to do.
+fn check_training_count(action: &Action, p: &Protocol) -> Result<()> {
+    let n = action.train.len();
+    if p.train_size.is_none() && n <= 2 {
+        bail!(
+            "action {}: {n} training demonstration{} (train_* files): each seed trains on all but two of them, \
+             which leaves none; add training demonstrations (at least 3), or give --train-size {n} to train on \
+             all of them in one run",
+            action.name,
+            if n == 1 { "" } else { "s" }
+        );
+    }
+    Ok(())
+}
+
 /// Runs the experiment and returns the report (progress bar on a terminal).
+#[allow(clippy::too_many_arguments)]
 pub fn evaluate(
     data_dir: &std::path::Path,
     actions: Vec<Action>,
@@ -281,8 +297,10 @@ pub fn evaluate(
     methods: &[NamedMethod],
     options: &PresetOptions,
     protocol: &Protocol,
+    unit: &Unit,
 ) -> Result<Report> {
     for action in &actions {
+        check_training_count(action, protocol)?;
         for t in action.train.iter().chain(&action.test) {
             spec.features(t).map_err(|e| column_hint(e, defaults))?;
         }
@@ -306,9 +324,16 @@ pub fn evaluate(
             .map_err(CliError::new)?;
         let reference = rows.first().cloned();
         let second = rows.get(1).cloned();
-        for row in rows {
-            let cmp = reference.as_ref().and_then(|b| paired(&row, b));
-            let cmp2 = second.as_ref().and_then(|b| paired(&row, b));
+        for (i, row) in rows.into_iter().enumerate() {
+            // A reference compared with itself has no comparison (not "0 % won").
+            let cmp = reference
+                .as_ref()
+                .filter(|_| i != 0)
+                .and_then(|b| paired(&row, b));
+            let cmp2 = second
+                .as_ref()
+                .filter(|_| i != 1)
+                .and_then(|b| paired(&row, b));
             results.push(ResultRow {
                 second_reference: second.as_ref().map(|b| b.method.clone()),
                 paired_change_second: cmp2.map(|c| c.0),
@@ -341,10 +366,11 @@ pub fn evaluate(
             actions: actions.iter().map(|a| a.name.clone()).collect(),
             methods: methods.iter().map(|m| m.label.clone()).collect(),
             protocol: protocol.clone(),
+            unit: unit.name.clone(),
             columns: spec.clone(),
             options: options.clone(),
         },
-        metric: metric_text(spec, protocol),
+        metric: metric_text(spec, protocol, unit),
         results,
     })
 }
@@ -366,12 +392,7 @@ pub fn run(a: &EvaluateArgs) -> Result<()> {
             bail!("--fail-above must be a positive number, not {x}");
         }
     }
-    if !(a.unit_scale.is_finite() && a.unit_scale > 0.0) {
-        bail!(
-            "--unit-scale must be a positive number, not {}",
-            a.unit_scale
-        );
-    }
+    let unit = a.unit.resolve()?;
     if a.train_size == Some(0) {
         bail!("--train-size must be at least 1");
     }
@@ -397,7 +418,7 @@ pub fn run(a: &EvaluateArgs) -> Result<()> {
             .skip(1)
             .find(|p| p.as_os_str().is_empty() || p.exists())
             .is_some_and(|p| p.as_os_str().is_empty() || p.is_dir());
-        if !dir.is_dir() && !(folder_form && creatable) {
+        if !(dir.is_dir() || folder_form && creatable) {
             bail!(
                 "-o {}: folder {} does not exist",
                 o.display(),
@@ -408,20 +429,10 @@ pub fn run(a: &EvaluateArgs) -> Result<()> {
     if !a.data.is_dir() {
         bail!("{}: evaluate needs a folder of action folders (or one action folder) with train_* and test_* files", a.data.display());
     }
-    let mut actions = data::load_dataset(&a.data).map_err(|e| column_hint(e, defaults))?;
-    if let Some(wanted) = &a.action {
-        let have: Vec<String> = actions.iter().map(|x| x.name.clone()).collect();
-        for w in wanted {
-            if !have.contains(w) {
-                bail!(
-                    "--action {w}: no such action in {} (actions: {})",
-                    a.data.display(),
-                    have.join(", ")
-                );
-            }
-        }
-        actions.retain(|x| wanted.contains(&x.name));
-    }
+    let actions = load_actions(&a.data, a.action.as_deref()).map_err(|e| match e {
+        Loading::Data(e) => column_hint(e, defaults),
+        Loading::Other(e) => e,
+    })?;
     let removal = a
         .missing
         .map(|f| crate::experiment::Removal::new(f, a.missing_mode))
@@ -430,12 +441,12 @@ pub fn run(a: &EvaluateArgs) -> Result<()> {
     let protocol = Protocol {
         seeds: a.seeds,
         train_size: a.train_size,
-        unit_scale: a.unit_scale,
+        unit_scale: unit.scale,
         standardise: a.model.standardise,
         removal,
     };
     let report = evaluate(
-        &a.data, actions, &spec, defaults, &methods, &options, &protocol,
+        &a.data, actions, &spec, defaults, &methods, &options, &protocol, &unit,
     )?;
     let md = markdown_document(&report);
     let json =
@@ -464,6 +475,53 @@ pub fn run(a: &EvaluateArgs) -> Result<()> {
         Format::Md => output::print_stdout(&md)?,
     }
     check(&report, a.fail_above)
+}
+
+/// Why [`load_actions`] failed: reading a demonstration, or the selection.
+enum Loading {
+    Data(data::DataError),
+    Other(CliError),
+}
+
+/// The actions of a data folder: the folder itself when it holds `train_*` files,
+/// else its action subfolders; with `wanted`, only those (the others are not read,
+/// so a broken folder of another action does not stop the run).
+fn load_actions(
+    dir: &Path,
+    wanted: Option<&[String]>,
+) -> std::result::Result<Vec<Action>, Loading> {
+    let other = |e: CliError| Loading::Other(e);
+    let folders = if super::has_train_files(dir).map_err(other)? {
+        vec![dir.to_path_buf()]
+    } else {
+        super::action_dirs(dir).map_err(other)?
+    };
+    if folders.is_empty() {
+        // load_dataset says what is missing.
+        return data::load_dataset(dir).map_err(Loading::Data);
+    }
+    let name = |d: &Path| {
+        d.file_name()
+            .map_or_else(|| "data".to_string(), |n| n.to_string_lossy().into_owned())
+    };
+    let chosen: Vec<&PathBuf> = match wanted {
+        None => folders.iter().collect(),
+        Some(w) => {
+            let have: Vec<String> = folders.iter().map(|d| name(d)).collect();
+            if let Some(x) = w.iter().find(|x| !have.contains(x)) {
+                return Err(other(CliError::new(format!(
+                    "--action {x}: no such action in {} (actions: {})",
+                    dir.display(),
+                    have.join(", ")
+                ))));
+            }
+            folders.iter().filter(|d| w.contains(&name(d))).collect()
+        }
+    };
+    chosen
+        .into_iter()
+        .map(|d| data::load_action(d).map_err(Loading::Data))
+        .collect()
 }
 
 /// The exit status of a finished run: an error (exit 1, after the table was printed and
@@ -498,15 +556,29 @@ pub fn check(report: &Report, fail_above: Option<f64>) -> Result<()> {
             dead.join("; ")
         );
     }
+    // An overflowed baseline (or a row whose MSE is somehow not finite) is a failure too.
+    let overflow: Vec<String> = report
+        .results
+        .iter()
+        .filter(|r| r.row.seeds > 0 && !r.row.mse_mean.is_finite())
+        .map(|r| format!("{} / {}", r.row.action, r.row.method))
+        .collect();
+    if !overflow.is_empty() {
+        bail!(
+            "MSE not finite for {} (unit scale {}: use a smaller --unit-scale)",
+            overflow.join("; "),
+            report.protocol.protocol.unit_scale
+        );
+    }
     if let Some(limit) = fail_above {
-        let u = unit(report.protocol.protocol.unit_scale);
+        let u = unit_of(&report.protocol).squared();
         let bad: Vec<String> = rows()
             .filter(|r| !(r.mse_mean.is_finite() && r.mse_mean <= limit))
-            .map(|r| format!("{} / {}: {} {u}²", r.action, r.method, r.mse_mean))
+            .map(|r| format!("{} / {}: {} {u}", r.action, r.method, r.mse_mean))
             .collect();
         if !bad.is_empty() {
             bail!(
-                "--fail-above {limit}: mean MSE not finite or above {limit} {u}² for {}",
+                "--fail-above {limit}: mean MSE not finite or above {limit} {u} for {}",
                 bad.join("; ")
             );
         }

@@ -1,8 +1,6 @@
 //! `phasekit fit`.
 
-use super::{
-    check_lengths, column_hint, feature_spec, fit_files, preset_options, read_tables, setup_threads,
-};
+use super::{check_lengths, column_hint, feature_spec, fit_files, preset_options, setup_threads};
 use crate::bail;
 use crate::cli::{FitArgs, Format};
 use crate::data::{FeatureSpec, Layout, Table};
@@ -11,7 +9,7 @@ use crate::experiment::parse_method;
 use crate::model_file::{MethodInfo, ModelFile, Standardisation};
 use crate::output;
 use phasekit_emission::SequenceSet;
-use phasekit_tsc::{FitSummary, PresetOptions, Roles};
+use phasekit_tsc::{FitStop, FitSummary, PresetOptions, Roles};
 use serde::Serialize;
 use std::path::PathBuf;
 
@@ -31,11 +29,47 @@ pub struct FitReport {
     /// Whether features were z-scored.
     pub standardised: bool,
     /// What the fit did: `iterations`, `log_likelihood` (per iteration, summed over
-    /// sequences), `converged`, `fit_seconds`, `jitter`, `transition_segments`, …
+    /// sequences), `stop` (why EM stopped), `fit_seconds`, `jitter`, `transition_segments`, …
     #[serde(flatten)]
     pub fit: FitSummary,
     /// Where the model was written.
     pub model_file: Option<PathBuf>,
+    /// What the fit had to do beyond the plain algorithm and what to try, one
+    /// sentence each: the same notes in every format (text, md, json).
+    pub notes: Vec<String>,
+}
+
+impl FitReport {
+    /// The report of a fitted model file, with its notes.
+    pub fn new(
+        mf: &ModelFile,
+        demonstrations: Vec<PathBuf>,
+        frames: usize,
+        model_file: Option<PathBuf>,
+    ) -> Self {
+        let mut r = FitReport {
+            method: mf.method.spec.clone(),
+            states: mf.n_states(),
+            demonstrations,
+            frames,
+            features: mf.layout.features.clone(),
+            standardised: mf.standardisation.is_some(),
+            fit: mf.fit.clone(),
+            model_file,
+            notes: Vec::new(),
+        };
+        r.notes = notes(&r.fit);
+        r
+    }
+}
+
+/// How a fit ended, in words.
+pub fn stop_text(stop: FitStop) -> &'static str {
+    match stop {
+        FitStop::Converged => "converged",
+        FitStop::MaxIter => "stopped at --max-iter",
+        FitStop::LogLikelihoodFell => "stopped because the log-likelihood fell",
+    }
 }
 
 /// Warnings about training features `seqs` (`T × d` each, as the model sees
@@ -119,6 +153,9 @@ pub fn fit_tables(
     let (layout, mut seqs) = training_features(tables, spec, defaults)?;
     check_lengths(tables, &named.method, &named.label)?;
     let d = layout.features.len();
+    let frames: usize = tables.iter().map(Table::n_rows).sum();
+    crate::data::check_fit_size(d, frames, super::min_frames(&named.method).0)
+        .map_err(CliError::new)?;
     let standardisation = standardise.then(|| Standardisation::fit(&seqs, d));
     if let Some(s) = &standardisation {
         let all: Vec<usize> = (0..d).collect();
@@ -148,7 +185,7 @@ pub fn fit_tables(
             CliError::new(msg)
         })?;
     summary.warnings = data_warnings(&seqs, &layout.features, summary.regularisation);
-    Ok(ModelFile::new(
+    ModelFile::new(
         layout,
         spec.clone(),
         standardisation,
@@ -158,7 +195,8 @@ pub fn fit_tables(
         },
         summary,
         model,
-    ))
+    )
+    .calibrated(&seqs)
 }
 
 /// Runs `phasekit fit`.
@@ -174,7 +212,11 @@ pub fn run(a: &FitArgs) -> Result<()> {
     let options = preset_options(&a.model)?;
     let (spec, defaults) = feature_spec(&a.columns);
     let files = fit_files(&a.data, a.action.as_deref())?;
-    let tables = read_tables(&files, true)?;
+    // Only the selected columns are parsed (a text column such as a timestamp does not matter).
+    let patterns = [spec.human.clone(), spec.robot.clone()].concat();
+    let tables =
+        crate::inputs::read_tables_select(&files, true, crate::data::Select::Globs(&patterns))
+            .map_err(|e| column_hint(e, defaults))?;
     let frames: usize = tables.iter().map(Table::n_rows).sum();
     let bar = output::spinner(&format!(
         "fitting {} to {} demonstrations ({frames} frames)",
@@ -194,16 +236,7 @@ pub fn run(a: &FitArgs) -> Result<()> {
     if let Some(path) = &a.output {
         mf.save(path)?;
     }
-    let report = FitReport {
-        method: mf.method.spec.clone(),
-        states: mf.n_states(),
-        demonstrations: files.clone(),
-        frames,
-        features: mf.layout.features.clone(),
-        standardised: mf.standardisation.is_some(),
-        fit: mf.fit.clone(),
-        model_file: a.output.clone(),
-    };
+    let report = FitReport::new(&mf, files.clone(), frames, a.output.clone());
     match format {
         Some(Format::Json) => {
             let text =
@@ -238,44 +271,52 @@ fn summary_line(r: &FitReport) -> String {
         r.features.len(),
         r.fit.fit_seconds,
         r.fit.iterations,
-        if r.fit.converged { "converged" } else { "stopped at --max-iter" },
+        stop_text(r.fit.stop),
         r.model_file.as_ref().map(|p| format!("; model written to {}", p.display())).unwrap_or_default()
-    ) + &notes(r)
+    ) + &r
+        .notes
+        .iter()
+        .map(|n| format!("\nphasekit: note: {n}"))
+        .collect::<String>()
 }
 
-/// What the fit had to do beyond the plain algorithm, one clause each.
-fn notes(r: &FitReport) -> String {
+/// What the fit had to do beyond the plain algorithm and what to try, one sentence each.
+pub fn notes(fit: &FitSummary) -> Vec<String> {
     let mut notes = Vec::new();
-    if r.fit.missing_values > 0 {
+    if fit.missing_values > 0 {
         notes.push(format!(
             "{} feature values missing (the fit used their expected values given the observed ones)",
-            r.fit.missing_values
+            fit.missing_values
         ));
     }
-    if !r.fit.jittered_states.is_empty() {
+    if !fit.jittered_states.is_empty() {
         notes.push(format!(
             "states {:?} needed extra jitter (up to {:e}) to stay positive definite: consider a larger --reg",
-            r.fit.jittered_states, r.fit.jitter
+            fit.jittered_states, fit.jitter
         ));
     }
-    if r.fit.stopped_on_decrease {
-        notes.push(
-            "EM stopped because the log-likelihood fell (the regularisation added after every M-step makes EM non-monotone): \
-             the model may be far from a good fit; try a smaller --reg or --standardise"
-                .to_string(),
-        );
+    if fit.stop == FitStop::LogLikelihoodFell {
+        let fall = match fit.log_likelihood.as_slice() {
+            [.., a, b] => format!(" by {:.3e} (from {a:.4} to {b:.4})", a - b),
+            _ => String::new(),
+        };
+        notes.push(format!(
+            "EM stopped after {} iteration{} because the log-likelihood fell{fall}: the regularisation added after \
+             every M-step makes EM non-monotone, and the protocol stops at the first fall{}; a smaller --reg or \
+             --standardise lets EM run on",
+            fit.iterations,
+            if fit.iterations == 1 { "" } else { "s" },
+            if fit.iterations <= 2 { " (the model is barely fitted)" } else { "" }
+        ));
     }
-    notes.extend(r.fit.warnings.iter().cloned());
-    if !r.fit.empty_states.is_empty() {
+    notes.extend(fit.warnings.iter().cloned());
+    if !fit.empty_states.is_empty() {
         notes.push(format!(
             "states {:?} received no frame and kept their initial parameters: fewer --states would do",
-            r.fit.empty_states
+            fit.empty_states
         ));
     }
     notes
-        .iter()
-        .map(|n| format!("\nphasekit: note: {n}"))
-        .collect()
 }
 
 fn markdown(r: &FitReport) -> String {
@@ -297,7 +338,7 @@ fn markdown(r: &FitReport) -> String {
             r.fit.chosen.clone().unwrap_or_else(|| "–".into()),
         ),
         ("iterations", r.fit.iterations.to_string()),
-        ("converged", r.fit.converged.to_string()),
+        ("stop", stop_text(r.fit.stop).to_string()),
         (
             "regularisation (added to every covariance diagonal)",
             format!("{:e}", r.fit.regularisation),
@@ -319,10 +360,6 @@ fn markdown(r: &FitReport) -> String {
             },
         ),
         ("missing values", r.fit.missing_values.to_string()),
-        (
-            "stopped because the log-likelihood fell",
-            r.fit.stopped_on_decrease.to_string(),
-        ),
         (
             "warnings",
             if r.fit.warnings.is_empty() {
@@ -347,6 +384,9 @@ fn markdown(r: &FitReport) -> String {
         ),
     ] {
         s.push_str(&format!("| {k} | {v} |\n"));
+    }
+    for n in &r.notes {
+        s.push_str(&format!("\nNote: {n}\n"));
     }
     s
 }

@@ -11,10 +11,9 @@ pub mod stream;
 
 use crate::bail;
 use crate::cli::{ColumnArgs, Count, ModelArgs};
-use crate::data::{self, DataError, FeatureSpec, Table, Velocity};
+use crate::data::{DataError, FeatureSpec, Table, Velocity};
 use crate::error::{CliError, Result};
 use phasekit_tsc::{Method, PresetOptions};
-use std::path::{Path, PathBuf};
 
 /// Default human columns (NuiSI, PROTOCOL.md).
 pub const DEFAULT_HUMAN: &str = "p1_wrist_*";
@@ -212,132 +211,8 @@ pub fn check_lengths(tables: &[Table], method: &Method, label: &str) -> Result<(
     Ok(())
 }
 
-fn is_table_file(p: &Path) -> bool {
-    p.is_file()
-        && p.extension()
-            .and_then(|e| e.to_str())
-            .is_some_and(|e| e.eq_ignore_ascii_case("csv") || e.eq_ignore_ascii_case("npy"))
-}
-
-fn list_dir(dir: &Path, filter: impl Fn(&Path) -> bool) -> Result<Vec<PathBuf>> {
-    let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
-        .map_err(|e| CliError::new(format!("{}: cannot read folder: {e}", dir.display())))?
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| filter(p))
-        .collect();
-    v.sort();
-    Ok(v)
-}
-
-fn name_starts(p: &Path, prefix: &str) -> bool {
-    p.file_name()
-        .and_then(|n| n.to_str())
-        .is_some_and(|n| n.starts_with(prefix))
-}
-
-/// Action folders (subfolders holding `train_*` files) of a folder.
-pub fn action_dirs(dir: &Path) -> Result<Vec<PathBuf>> {
-    let subdirs = list_dir(dir, |p| p.is_dir())?;
-    let mut out = Vec::new();
-    for d in subdirs {
-        if !list_dir(&d, |p| is_table_file(p) && name_starts(p, "train_"))?.is_empty() {
-            out.push(d);
-        }
-    }
-    Ok(out)
-}
-
-fn dir_name(p: &Path) -> String {
-    p.file_name()
-        .and_then(|n| n.to_str())
-        .unwrap_or("?")
-        .to_string()
-}
-
-/// Training files for `fit`: files as given; a folder's `train_*` files; with
-/// `action`, those of the folder's subfolder `action`.
-pub fn fit_files(paths: &[PathBuf], action: Option<&str>) -> Result<Vec<PathBuf>> {
-    let mut out = Vec::new();
-    for p in paths {
-        if !p.exists() {
-            bail!("{}: no such file or folder", p.display());
-        }
-        if p.is_file() {
-            out.push(p.clone());
-            continue;
-        }
-        let dir = match action {
-            Some(a) => {
-                let d = p.join(a);
-                if !d.is_dir() {
-                    let have: Vec<String> = action_dirs(p)?.iter().map(|d| dir_name(d)).collect();
-                    bail!(
-                        "{}: no action folder `{a}` (actions: {})",
-                        p.display(),
-                        if have.is_empty() {
-                            "none".into()
-                        } else {
-                            have.join(", ")
-                        }
-                    );
-                }
-                d
-            }
-            None => p.clone(),
-        };
-        let train = list_dir(&dir, |f| is_table_file(f) && name_starts(f, "train_"))?;
-        if !train.is_empty() {
-            out.extend(train);
-            continue;
-        }
-        let actions = action_dirs(&dir)?;
-        if !actions.is_empty() {
-            let names: Vec<String> = actions.iter().map(|d| dir_name(d)).collect();
-            bail!(
-                "{}: holds several actions ({}); fit one at a time with --action NAME",
-                dir.display(),
-                names.join(", ")
-            );
-        }
-        bail!(
-            "{}: no train_*.csv or train_*.npy file in this folder",
-            dir.display()
-        );
-    }
-    Ok(out)
-}
-
-/// Files for `predict`, `segment` and plots: files as given, a folder's CSV/NPY files.
-pub fn data_files(paths: &[PathBuf]) -> Result<Vec<PathBuf>> {
-    let mut out = Vec::new();
-    for p in paths {
-        if !p.exists() {
-            bail!("{}: no such file or folder", p.display());
-        }
-        if p.is_file() {
-            out.push(p.clone());
-        } else {
-            let files = list_dir(p, is_table_file)?;
-            if files.is_empty() {
-                bail!("{}: no .csv or .npy file in this folder", p.display());
-            }
-            out.extend(files);
-        }
-    }
-    Ok(out)
-}
-
-/// Reads every file; with `same_columns`, all must have the columns of the first.
-pub fn read_tables(files: &[PathBuf], same_columns: bool) -> Result<Vec<Table>> {
-    let tables = files
-        .iter()
-        .map(|f| data::read_table(f))
-        .collect::<data::Result<Vec<_>>>()?;
-    if same_columns {
-        data::check_same_columns(&tables)?;
-    }
-    Ok(tables)
-}
+// Resolving and reading `--data` lives in `crate::inputs`.
+pub use crate::inputs::{action_dirs, data_files, fit_files, has_train_files, read_tables};
 
 #[cfg(test)]
 mod tests {

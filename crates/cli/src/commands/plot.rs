@@ -1,4 +1,4 @@
-//! `phasekit plot`.
+//! `phasekit plot`: reads the model and the demonstrations, draws with [`crate::plot`].
 
 use super::{data_files, read_tables};
 use crate::cli::{PlotArgs, PlotKind, View};
@@ -15,16 +15,18 @@ use crate::plot::{
 pub fn run(a: &PlotArgs) -> Result<()> {
     match &a.kind {
         PlotKind::Segmentation(p) | PlotKind::Prediction(p) => {
+            let unit = p.unit.resolve()?;
             let mf = ModelFile::load(&p.model)?;
             let table = read_table(&p.data)?;
             let svg = match &a.kind {
-                PlotKind::Segmentation(_) => segmentation_svg(&mf, &table)?,
-                _ => prediction_svg(&mf, &table)?,
+                PlotKind::Segmentation(_) => segmentation_svg(&mf, &table, &unit)?,
+                _ => prediction_svg(&mf, &table, &unit)?,
             };
             output::write_string(&p.output, &svg)
         }
         PlotKind::Recognition(p) => super::recognise::plot(p),
         PlotKind::States(p) => {
+            let unit = p.unit.resolve()?;
             let mf = ModelFile::load(&p.model)?;
             let tables = read_tables(&data_files(&p.data)?, false)?;
             let pick = |name: &Option<String>, default: usize| {
@@ -69,7 +71,7 @@ pub fn run(a: &PlotArgs) -> Result<()> {
                 }
                 seen.push(k);
             }
-            let svg = states_svg_projected(&mf, &tables, &projection)?;
+            let svg = states_svg_projected(&mf, &tables, &projection, &unit)?;
             output::write_string(&p.output, &svg)
         }
     }

@@ -14,7 +14,9 @@ use crate::experiment::parse_method;
 use crate::library_file::{ActionInfo, LibraryFile};
 use crate::model_file::{MethodInfo, ModelFile, Standardisation};
 use crate::output;
-use crate::pipeline::{prediction_header, prediction_line, Differencer, StreamPredictor};
+use crate::pipeline::{
+    prediction_header, prediction_line, Differencer, FrameStatus, StreamPredictor,
+};
 use clap::{Args, ValueEnum};
 use phasekit_emission::SequenceSet;
 use phasekit_recognition::{
@@ -526,9 +528,8 @@ pub fn fit_library(a: &FitArgs, settings: &LibraryArgs) -> Result<()> {
             output::print_stdout(&(text + "\n"))?;
         }
         Some(Format::Csv) => {
-            let mut s = String::from(
-                "action,states,demonstrations,frames,iterations,converged,fit_seconds\n",
-            );
+            let mut s =
+                String::from("action,states,demonstrations,frames,iterations,stop,fit_seconds\n");
             for r in &report.actions {
                 s.push_str(&format!(
                     "{},{},{},{},{},{},{}\n",
@@ -537,14 +538,14 @@ pub fn fit_library(a: &FitArgs, settings: &LibraryArgs) -> Result<()> {
                     r.demonstrations,
                     r.frames,
                     r.fit.iterations,
-                    r.fit.converged,
+                    crate::commands::fit::stop_text(r.fit.stop),
                     r.fit.fit_seconds
                 ));
             }
             output::print_stdout(&s)?;
         }
         Some(Format::Md) => {
-            let mut s = String::from("| action | states | demonstrations | frames | iterations | converged | fit (s) |\n|---|---:|---:|---:|---:|---|---:|\n");
+            let mut s = String::from("| action | states | demonstrations | frames | iterations | stop | fit (s) |\n|---|---:|---:|---:|---:|---|---:|\n");
             for r in &report.actions {
                 s.push_str(&format!(
                     "| {} | {} | {} | {} | {} | {} | {:.3} |\n",
@@ -553,7 +554,7 @@ pub fn fit_library(a: &FitArgs, settings: &LibraryArgs) -> Result<()> {
                     r.demonstrations,
                     r.frames,
                     r.fit.iterations,
-                    r.fit.converged,
+                    crate::commands::fit::stop_text(r.fit.stop),
                     r.fit.fit_seconds
                 ));
             }
@@ -611,6 +612,13 @@ impl Engine {
         match self {
             Engine::PerAction(r) => r.reset(),
             Engine::Composed(r) => r.reset(),
+        }
+    }
+
+    fn frame_rejected(&self) -> bool {
+        match self {
+            Engine::PerAction(r) => r.frame_rejected(),
+            Engine::Composed(r) => r.frame_rejected(),
         }
     }
 
@@ -757,6 +765,16 @@ fn recognition_csv(r: &Recognition) -> String {
 pub fn run(a: &RecogniseArgs) -> Result<()> {
     let file = LibraryFile::load(&a.model)?;
     let files = super::data_files(&a.data)?;
+    let format = if a.json { Format::Json } else { a.format };
+    if format == Format::Md {
+        bail!("recognise writes csv or json, not md");
+    }
+    if let Some(o) = &a.output {
+        let ins: Vec<&Path> = std::iter::once(a.model.as_path())
+            .chain(files.iter().map(|p| p.as_path()))
+            .collect();
+        output::refuse_inputs(&[o], &ins)?;
+    }
     let tables = read_tables(&files, false)?;
     if a.composed && a.reject != RejectArg::LikelihoodPerFrame && a.reject != RejectArg::Off {
         bail!("--composed does not reject unknown motions (its rest state absorbs the time between interactions): leave --reject out");
@@ -780,10 +798,6 @@ pub fn run(a: &RecogniseArgs) -> Result<()> {
             )
         })
         .collect::<Result<Vec<_>>>()?;
-    let format = if a.json { Format::Json } else { a.format };
-    if format == Format::Md {
-        bail!("recognise writes csv or json, not md");
-    }
     let render = |r: &Recognition| -> Result<String> {
         Ok(if format == Format::Json {
             serde_json::to_string_pretty(r).map_err(|e| CliError::new(e.to_string()))? + "\n"
@@ -832,6 +846,34 @@ pub fn run(a: &RecogniseArgs) -> Result<()> {
         }
         Some(o) => output::write_string(o, &render(&results[0])?),
     }
+}
+
+/// Before any work (`fit --library`): the library file is JSON and none of
+/// the training files.
+pub fn check_fit_output(a: &FitArgs) -> Result<()> {
+    let Some(o) = &a.output else { return Ok(()) };
+    output::check_extension(o, &["json"], true, "a library file is JSON")?;
+    let mut files = Vec::new();
+    for d in &a.data {
+        if d.is_dir() {
+            for action in action_dirs(d)? {
+                files.extend(fit_files(std::slice::from_ref(&action), None)?);
+            }
+        }
+    }
+    let ins: Vec<&Path> = files.iter().map(|p| p.as_path()).collect();
+    output::refuse_inputs(&[o], &ins)
+}
+
+/// Before any work (`plot recognition`): an SVG that is none of the inputs.
+pub fn check_plot_output(a: &PlotRecognitionArgs) -> Result<()> {
+    output::check_extension(&a.output, &["svg"], false, "plot writes SVG")?;
+    let ins: Vec<&Path> = [&a.model, &a.data, &a.results]
+        .into_iter()
+        .flatten()
+        .map(|p| p.as_path())
+        .collect();
+    output::refuse_inputs(&[&a.output], &ins)
 }
 
 /// Runs `phasekit plot recognition`.
@@ -890,6 +932,13 @@ impl StreamTarget {
             StreamTarget::Model(m) => &m.layout.human_columns,
             StreamTarget::Library(l) => &l.layout.human_columns,
         }
+    }
+
+    /// Whether the target is a model file without an out-of-distribution
+    /// threshold (written by an older phasekit). A library flags a frame `ood`
+    /// when its rejection test rejects the motion.
+    pub fn lacks_novelty(&self) -> bool {
+        matches!(self, StreamTarget::Model(m) if m.novelty.is_none())
     }
 
     /// The frame-by-frame predictor; `mode` chooses a library's recogniser.
@@ -991,25 +1040,30 @@ impl Streamer<'_> {
     }
 
     /// Takes one raw human frame (NaN = missing), predicts (and recognises),
-    /// and writes the output line of frame number `frame` (without newline).
+    /// writes the output line of frame number `frame` (without newline and
+    /// without the status) and returns the frame's status. A library's frame
+    /// is `ood` while its rejection test rejects the motion (the decision is
+    /// `unknown`), `rejected` when a value overflows (it is then taken as not
+    /// observed), `unobserved` when nothing is observed.
     pub fn step_line(
         &mut self,
         raw: &[f64],
         frame: usize,
         with_covariance: bool,
         line: &mut String,
-    ) -> Result<()> {
+    ) -> Result<FrameStatus> {
         match self {
             Streamer::Model(p, _) => {
                 let (mean, cov) = p.step(raw, with_covariance)?;
                 prediction_line(frame, mean, cov, line);
+                Ok(p.last().status)
             }
             Streamer::Library(l) => {
-                l.step(raw)?;
+                let status = l.step(raw)?;
                 l.line(frame, line);
+                Ok(status)
             }
         }
-        Ok(())
     }
 
     /// Starts a new demonstration.
@@ -1025,7 +1079,7 @@ impl Streamer<'_> {
 }
 
 impl LibraryStream<'_> {
-    fn step(&mut self, raw: &[f64]) -> Result<()> {
+    fn step(&mut self, raw: &[f64]) -> Result<FrameStatus> {
         let f = self.file;
         if raw.len() != f.layout.human_columns.len() {
             bail!(
@@ -1040,7 +1094,22 @@ impl LibraryStream<'_> {
         if let Some(s) = &f.standardisation {
             s.apply(&mut self.features, &f.layout.human);
         }
+        // A value infinite once standardised is explained by no state of any
+        // action: the frame is taken as not observed, as a single model's
+        // stream does; so is a frame every action finds impossible (the
+        // recognisers report it).
+        let mut rejected = self.features.iter().any(|v| v.is_infinite());
+        if rejected {
+            self.features.fill(f64::NAN);
+        }
+        let observed = self.features.iter().any(|v| !v.is_nan());
         self.decision = self.engine.step(&self.features)?;
+        if self.engine.frame_rejected() {
+            rejected = true;
+        }
+        if rejected {
+            self.diff.forget_last();
+        }
         let (m, c) = self.engine.robot();
         self.mean.copy_from_slice(m);
         if let (Some(c), true) = (c, self.with_covariance) {
@@ -1048,7 +1117,15 @@ impl LibraryStream<'_> {
         }
         let cov = self.with_covariance.then_some(&mut self.covariance[..]);
         f.to_data_units(&mut self.mean, cov);
-        Ok(())
+        Ok(if rejected {
+            FrameStatus::Rejected
+        } else if !observed {
+            FrameStatus::Unobserved
+        } else if self.decision == Decision::Unknown {
+            FrameStatus::OutOfDistribution
+        } else {
+            FrameStatus::Ok
+        })
     }
 
     fn line(&self, frame: usize, line: &mut String) {

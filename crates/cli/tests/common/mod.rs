@@ -9,9 +9,32 @@ use phasekit_tsc::synthetic;
 use std::path::{Path, PathBuf};
 use tempfile::TempDir;
 
-/// The `phasekit` binary of this build.
+/// The `phasekit` binary of this build (or, to show that a test fails on an
+/// older build, the one `PHASEKIT_BIN` names).
 pub fn phasekit() -> Command {
-    Command::cargo_bin("phasekit").expect("the phasekit binary is built")
+    match std::env::var_os("PHASEKIT_BIN") {
+        Some(bin) => Command::new(bin),
+        None => Command::cargo_bin("phasekit").expect("the phasekit binary is built"),
+    }
+}
+
+/// The path of the binary [`phasekit`] runs.
+pub fn phasekit_path() -> PathBuf {
+    match std::env::var_os("PHASEKIT_BIN") {
+        Some(bin) => PathBuf::from(bin),
+        None => assert_cmd::cargo::cargo_bin("phasekit"),
+    }
+}
+
+/// Fits `method` to the folder `data` into `model` (quietly), asserting success.
+pub fn fit_model(data: &Path, method: &str, model: &Path) {
+    phasekit()
+        .args(["fit", "--method", method, "--data"])
+        .arg(data)
+        .arg("-o")
+        .arg(model)
+        .assert()
+        .success();
 }
 
 /// Writes `frames` (`T × 6`, the columns of [`synthetic::COLUMNS`]) as a CSV
@@ -70,4 +93,34 @@ pub fn parse_csv(text: &str) -> (Vec<String>, Vec<Vec<f64>>) {
         .map(|l| l.split(',').map(|c| c.parse().unwrap()).collect())
         .collect();
     (header, rows)
+}
+
+/// The header, the numeric rows and the statuses of `phasekit stream`'s
+/// output (whose last column is `status`), with or without a header line.
+pub fn parse_stream(text: &str, with_header: bool) -> (Vec<String>, Vec<Vec<f64>>, Vec<String>) {
+    let mut lines = text.lines();
+    let header: Vec<String> = if with_header {
+        let h: Vec<String> = lines
+            .next()
+            .unwrap()
+            .split(',')
+            .map(str::to_string)
+            .collect();
+        assert_eq!(h.last().map(String::as_str), Some("status"), "{h:?}");
+        h[..h.len() - 1].to_vec()
+    } else {
+        Vec::new()
+    };
+    let (mut rows, mut status) = (Vec::new(), Vec::new());
+    for l in lines {
+        let (values, s) = l.rsplit_once(',').unwrap();
+        rows.push(values.split(',').map(|c| c.parse().unwrap()).collect());
+        status.push(s.to_string());
+    }
+    (header, rows, status)
+}
+
+/// A model file's JSON.
+pub fn model_json(path: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
 }

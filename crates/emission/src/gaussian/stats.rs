@@ -1,0 +1,421 @@
+//! The Gaussian's sufficient statistics (about per-state reference points,
+//! merged exactly) and its M-step with regularisation and jitter.
+
+use super::kernels::accumulate_full_avx2_fma;
+use super::Gaussian;
+use crate::error::{EmissionError, Result};
+use crate::linalg;
+use crate::regularisation::{
+    jitter_variances, regularised_covariance, regularised_variance, CovarianceRegularisation,
+    MStepEvent, MStepReport, Regularisation,
+};
+use crate::{CovarianceType, Frames, SufficientStatistics};
+use nalgebra::DMatrix;
+use serde::{Deserialize, Serialize};
+
+impl Gaussian {
+    /// For a placeholder template, anchors the reference point of every state
+    /// that has no weight yet at its first weighted frame (dimension by
+    /// dimension at the first observed value, when values are missing).
+    pub(super) fn anchor(&self, frames: Frames<'_>, weights: &[f64], stats: &mut GaussianStats) {
+        if !stats.anchor_lazily {
+            return;
+        }
+        let (s, d) = (self.n_states, self.dim);
+        for i in 0..s {
+            if stats.weight[i] != 0.0 {
+                continue;
+            }
+            let Some(t) = (0..frames.len()).find(|&t| weights[t * s + i] != 0.0) else {
+                continue;
+            };
+            let shift = &mut stats.shift[i * d..(i + 1) * d];
+            shift.copy_from_slice(frames.frame(t));
+            if frames.has_missing() {
+                for (k, c) in shift.iter_mut().enumerate() {
+                    if c.is_nan() {
+                        *c = (t..frames.len())
+                            .filter(|&u| weights[u * s + i] != 0.0)
+                            .map(|u| frames.frame(u)[k])
+                            .find(|v| !v.is_nan())
+                            .unwrap_or(0.0);
+                    }
+                }
+            }
+        }
+    }
+
+    /// [`Emission::accumulate`] for complete frames (no NaN).
+    pub(super) fn accumulate_complete(
+        &self,
+        frames: Frames<'_>,
+        weights: &[f64],
+        stats: &mut GaussianStats,
+    ) {
+        let (s, d) = (self.n_states, self.dim);
+        if matches!(self.kind, CovarianceType::Full | CovarianceType::Tied) {
+            #[cfg(target_arch = "x86_64")]
+            {
+                if linalg::has_avx2_fma() {
+                    // SAFETY: the CPU supports AVX2 and FMA (checked above).
+                    unsafe { accumulate_full_avx2_fma(self, frames, weights, stats) };
+                    return;
+                }
+            }
+            self.accumulate_full(frames, weights, stats);
+            return;
+        }
+        for i in 0..s {
+            let c = &stats.shift[i * d..(i + 1) * d];
+            let sum = &mut stats.sum[i * d..(i + 1) * d];
+            let lo = &mut stats.lo[i * d..(i + 1) * d];
+            let hi = &mut stats.hi[i * d..(i + 1) * d];
+            let mut n = 0.0;
+            {
+                let q = &mut stats.sum_sq[i * d..(i + 1) * d];
+                for (t, x) in frames.iter().enumerate() {
+                    let w = weights[t * s + i];
+                    if w == 0.0 {
+                        continue;
+                    }
+                    n += w;
+                    for k in 0..d {
+                        lo[k] = lo[k].min(x[k]);
+                        hi[k] = hi[k].max(x[k]);
+                        let e = x[k] - c[k];
+                        sum[k] += w * e;
+                        q[k] += w * e * e;
+                    }
+                }
+            }
+            stats.weight[i] += n;
+        }
+    }
+
+    pub(super) fn kept(&self, i: usize, stats: &GaussianStats, reg: &Regularisation) -> bool {
+        stats.weight[i] < reg.min_weight().max(f64::MIN_POSITIVE)
+    }
+
+    /// Scatter matrix of state `i` about its new mean, `Q − s sᵀ / n` (full, row-major).
+    pub(super) fn scatter_full(stats: &GaussianStats, i: usize) -> DMatrix<f64> {
+        let d = stats.dim;
+        let n = stats.weight[i];
+        let s = &stats.sum[i * d..(i + 1) * d];
+        let q = &stats.sum_sq[i * d * d..(i + 1) * d * d];
+        DMatrix::from_fn(d, d, |r, c| {
+            let (r, c) = if c <= r { (r, c) } else { (c, r) };
+            if stats.is_constant(i, r) || stats.is_constant(i, c) {
+                // Exactly zero: `Q − s sᵀ / n` would leave rounding noise, which
+                // would pass for a tiny positive variance.
+                0.0
+            } else {
+                q[r * d + c] - s[r] * s[c] / n
+            }
+        })
+    }
+
+    /// The body of [`Emission::m_step`].
+    pub(super) fn maximise(
+        &mut self,
+        stats: &GaussianStats,
+        reg: &Regularisation,
+    ) -> Result<MStepReport> {
+        let (s, d) = (self.n_states, self.dim);
+        if !stats.has_shape(self.kind, s, d) {
+            return Err(EmissionError::StatsMismatch(
+                "statistics shaped for another model".into(),
+            ));
+        }
+        let mut report = MStepReport {
+            added_diagonal: match reg.covariance() {
+                CovarianceRegularisation::AddDiagonal(r) => r,
+                _ => 0.0,
+            },
+            events: Vec::new(),
+        };
+        let mut means = self.means.clone();
+        let mut covs = self.covariances.clone();
+        for i in 0..s {
+            let n = stats.weight[i];
+            if self.kept(i, stats, reg) {
+                report.events.push(MStepEvent::KeptEmptyState {
+                    state: i,
+                    component: None,
+                    weight: n,
+                });
+                continue;
+            }
+            for k in 0..d {
+                means[i * d + k] = if stats.is_constant(i, k) {
+                    stats.lo[i * d + k]
+                } else {
+                    stats.shift[i * d + k] + stats.sum[i * d + k] / n
+                };
+            }
+        }
+        match self.kind {
+            CovarianceType::Full => {
+                for i in 0..s {
+                    if self.kept(i, stats, reg) {
+                        continue;
+                    }
+                    let cov = regularised_covariance(
+                        Self::scatter_full(stats, i),
+                        stats.weight[i],
+                        reg,
+                        i,
+                        &mut report.events,
+                    )?;
+                    for r in 0..d {
+                        for c in 0..d {
+                            covs[i * d * d + r * d + c] = cov[(r, c)];
+                        }
+                    }
+                }
+            }
+            CovarianceType::Tied => {
+                let mut scatter = DMatrix::zeros(d, d);
+                let mut n_total = 0.0;
+                for i in 0..s {
+                    if stats.weight[i] > 0.0 {
+                        scatter += Self::scatter_full(stats, i);
+                        n_total += stats.weight[i];
+                    }
+                }
+                if n_total >= reg.min_weight().max(f64::MIN_POSITIVE) {
+                    let cov = regularised_covariance(scatter, n_total, reg, 0, &mut report.events)?;
+                    for r in 0..d {
+                        for c in 0..d {
+                            covs[r * d + c] = cov[(r, c)];
+                        }
+                    }
+                }
+            }
+            CovarianceType::Diagonal | CovarianceType::Spherical => {
+                for i in 0..s {
+                    if self.kept(i, stats, reg) {
+                        continue;
+                    }
+                    let n = stats.weight[i];
+                    let q = |k: usize| {
+                        if stats.is_constant(i, k) {
+                            return 0.0;
+                        }
+                        let sk = stats.sum[i * d + k];
+                        stats.sum_sq[i * d + k] - sk * sk / n
+                    };
+                    if self.kind == CovarianceType::Diagonal {
+                        for k in 0..d {
+                            covs[i * d + k] = regularised_variance(q(k), n, 1.0, d as f64, reg);
+                        }
+                    } else {
+                        let total: f64 = (0..d).map(|k| q(k).max(0.0)).sum();
+                        covs[i] = regularised_variance(total, n, d as f64, d as f64, reg);
+                    }
+                }
+                let per = if self.kind == CovarianceType::Diagonal {
+                    d
+                } else {
+                    1
+                };
+                for (i, vars) in covs.chunks_exact_mut(per).enumerate() {
+                    jitter_variances(vars, reg, i, &mut report.events)?;
+                }
+            }
+        }
+        let mut updated = Gaussian {
+            means,
+            covariances: covs,
+            placeholder: false,
+            added_diagonal: report.added_diagonal,
+            ..self.clone()
+        };
+        updated.refactor()?;
+        *self = updated;
+        Ok(report)
+    }
+}
+
+/// Sufficient statistics of [`Gaussian`] states, about per-state reference points.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct GaussianStats {
+    pub(super) kind: CovarianceType,
+    pub(super) dim: usize,
+    /// Reference point `c_i` per state (`S × D`): the means of the model that
+    /// created the stats, or (for a placeholder template) the state's first weighted frame.
+    pub(super) shift: Vec<f64>,
+    /// Anchor every state's reference point at its first weighted frame.
+    #[serde(default)]
+    pub(super) anchor_lazily: bool,
+    /// `n_i = Σ_t γ_t(i)`.
+    pub(super) weight: Vec<f64>,
+    /// `Σ_t γ_t(i) (x_t − c_i)`, `S × D`.
+    pub(super) sum: Vec<f64>,
+    /// Full/tied: lower triangle of `Σ_t γ_t(i) (x_t − c_i)(x_t − c_i)ᵀ`, `S × D × D`;
+    /// diagonal/spherical: its diagonal, `S × D`.
+    pub(super) sum_sq: Vec<f64>,
+    /// Smallest and largest value of every dimension over the frames with positive
+    /// weight, `S × D`: a dimension with `lo == hi` is exactly constant, and its
+    /// scatter is exactly zero rather than the rounding noise of `Q − s sᵀ / n`.
+    pub(super) lo: Vec<f64>,
+    pub(super) hi: Vec<f64>,
+}
+
+impl GaussianStats {
+    /// Total weight `n_i` of each state.
+    pub fn weights(&self) -> &[f64] {
+        &self.weight
+    }
+
+    /// True when every array has the length required by `s` states of dimension
+    /// `d` and structure `kind` (deserialised statistics may not).
+    pub(super) fn has_shape(&self, kind: CovarianceType, s: usize, d: usize) -> bool {
+        let sq = match kind {
+            CovarianceType::Full | CovarianceType::Tied => s * d * d,
+            CovarianceType::Diagonal | CovarianceType::Spherical => s * d,
+        };
+        self.kind == kind
+            && self.dim == d
+            && self.weight.len() == s
+            && [&self.shift, &self.sum, &self.lo, &self.hi]
+                .iter()
+                .all(|v| v.len() == s * d)
+            && self.sum_sq.len() == sq
+    }
+
+    /// True when dimension `k` took a single value over the frames given to state `i`.
+    pub(super) fn is_constant(&self, i: usize, k: usize) -> bool {
+        let j = i * self.dim + k;
+        self.lo[j] == self.hi[j]
+    }
+}
+
+impl SufficientStatistics for GaussianStats {
+    fn merge(&mut self, other: &Self) -> Result<()> {
+        let s = self.weight.len();
+        if !self.has_shape(self.kind, s, self.dim) || !other.has_shape(self.kind, s, self.dim) {
+            return Err(EmissionError::StatsMismatch(
+                "Gaussian statistics from a different model (structure or dimension differ)".into(),
+            ));
+        }
+        let d = self.dim;
+        let full = matches!(self.kind, CovarianceType::Full | CovarianceType::Tied);
+        let sq = if full { d * d } else { d };
+        let mut delta = vec![0.0; d];
+        for i in 0..s {
+            let nb = other.weight[i];
+            let (ca, cb) = (
+                &self.shift[i * d..(i + 1) * d],
+                &other.shift[i * d..(i + 1) * d],
+            );
+            if nb == 0.0 && other.sum[i * d..(i + 1) * d].iter().all(|v| *v == 0.0) {
+                continue;
+            }
+            if self.weight[i] == 0.0
+                && self.sum[i * d..(i + 1) * d].iter().all(|v| *v == 0.0)
+                && ca != cb
+            {
+                // Nothing accumulated here yet: adopt the other's reference point.
+                self.shift[i * d..(i + 1) * d].copy_from_slice(cb);
+            }
+            let ca = &self.shift[i * d..(i + 1) * d];
+            // Re-centre the other's statistics on our reference point (exact algebra):
+            // s' = s_b + n_b δ, Q' = Q_b + δ s_bᵀ + s_b δᵀ + n_b δ δᵀ with δ = c_b − c_a.
+            for k in 0..d {
+                delta[k] = cb[k] - ca[k];
+            }
+            let sb = &other.sum[i * d..(i + 1) * d];
+            let qb = &other.sum_sq[i * sq..(i + 1) * sq];
+            let qa = &mut self.sum_sq[i * sq..(i + 1) * sq];
+            if full {
+                for r in 0..d {
+                    for c in 0..=r {
+                        qa[r * d + c] += qb[r * d + c]
+                            + delta[r] * sb[c]
+                            + sb[r] * delta[c]
+                            + nb * delta[r] * delta[c];
+                    }
+                }
+            } else {
+                for k in 0..d {
+                    qa[k] += qb[k] + 2.0 * delta[k] * sb[k] + nb * delta[k] * delta[k];
+                }
+            }
+            for k in 0..d {
+                self.sum[i * d + k] += sb[k] + nb * delta[k];
+            }
+            self.weight[i] += nb;
+        }
+        for (a, b) in self.lo.iter_mut().zip(&other.lo) {
+            *a = a.min(*b);
+        }
+        for (a, b) in self.hi.iter_mut().zip(&other.hi) {
+            *a = a.max(*b);
+        }
+        Ok(())
+    }
+
+    fn total_weight(&self) -> f64 {
+        self.weight.iter().sum()
+    }
+}
+
+/// The M-step of one Gaussian state's mean and covariance, written as the
+/// formula (the reference form):
+///
+/// `μ = Σ_t w_t x_t / Σ_t w_t`, `Σ = Σ_t w_t (x_t − μ)(x_t − μ)ᵀ / Σ_t w_t`
+///
+/// for complete frames, before regularisation ([`regularised_covariance`]
+/// applies it to the scatter `n Σ`). [`Gaussian`]'s accumulation (blocked,
+/// packed, about per-state reference points, merged across blocks) and its
+/// M-step compute the same quantities faster; the tests hold them to this
+/// function (`crates/emission/tests/capabilities.rs`).
+///
+/// Errors when the lengths differ, a frame has a missing value, a weight is
+/// negative or not finite, or the total weight is not positive.
+pub fn weighted_mean_covariance(
+    frames: Frames<'_>,
+    weights: &[f64],
+) -> Result<(Vec<f64>, DMatrix<f64>)> {
+    let d = frames.dim();
+    crate::check_len("weights", frames.len(), weights.len())?;
+    if frames.has_missing() {
+        return Err(EmissionError::Unsupported(
+            "weighted_mean_covariance takes complete frames".into(),
+        ));
+    }
+    if let Some(t) = weights.iter().position(|w| !(w.is_finite() && *w >= 0.0)) {
+        return Err(EmissionError::InvalidParameter {
+            name: "weights",
+            reason: format!(
+                "frame {t}: weight {} is not finite and non-negative",
+                weights[t]
+            ),
+        });
+    }
+    let n: f64 = weights.iter().sum();
+    if n.is_nan() || n <= 0.0 {
+        return Err(EmissionError::InvalidParameter {
+            name: "weights",
+            reason: "the total weight is not positive".into(),
+        });
+    }
+    let mut mean = vec![0.0; d];
+    for (x, w) in frames.iter().zip(weights) {
+        for k in 0..d {
+            mean[k] += w * x[k];
+        }
+    }
+    for m in mean.iter_mut() {
+        *m /= n;
+    }
+    let mut cov = DMatrix::zeros(d, d);
+    for (x, w) in frames.iter().zip(weights) {
+        for r in 0..d {
+            for c in 0..d {
+                cov[(r, c)] += w * (x[r] - mean[r]) * (x[c] - mean[c]);
+            }
+        }
+    }
+    Ok((mean, cov / n))
+}
