@@ -690,7 +690,7 @@ fn the_temperature_divides_the_evidence_and_can_be_chosen_on_held_out_demonstrat
             assert!((q - ((l - top) / 4.0).exp() / z).abs() < 1e-12);
         }
         // The mixture weights are the tempered posterior.
-        let mut m = vec![0.0; 6];
+        let mut m = [0.0; 6];
         for (a, w) in r4.posterior().iter().enumerate() {
             m.iter_mut()
                 .zip(r4.action_robot(a))
