@@ -187,7 +187,7 @@ impl LibraryFile {
                 self.library.dim()
             )));
         }
-        if roles.human != l.human || roles.robot != l.robot {
+        if roles.human() != l.human || roles.robot() != l.robot {
             return Err(CliError::new("the library's roles and the layout disagree"));
         }
         let hv = matches!(l.velocity, Velocity::Both | Velocity::Human);
@@ -211,7 +211,7 @@ impl LibraryFile {
                 self.library.names().join(", ")
             )));
         }
-        self.method.settings.validate()?;
+        // The method's settings were validated when read (the presets' settings deserialise checked).
         if let Some(s) = &self.standardisation {
             if s.mean.len() != d || s.std.len() != d {
                 return Err(CliError::new("standardisation has the wrong length"));

@@ -120,10 +120,7 @@ pub fn dataset(
     Ok(Dataset {
         actions: splits,
         dim: layout.features.len(),
-        roles: Roles {
-            human: layout.human.clone(),
-            robot: layout.robot.clone(),
-        },
+        roles: Roles::new(layout.human.clone(), layout.robot.clone())?,
         scored: layout.robot_positions.clone(),
         unit_scale,
     })
@@ -213,7 +210,7 @@ pub fn run(a: &EvaluateArgs) -> Result<()> {
     settings.seeds = a.seeds;
     settings.train_size = a.train_size;
     settings.standardise = a.model.standardise;
-    settings.library = a.library_settings.settings(options.reg)?;
+    settings.library = a.library_settings.settings(options.reg())?;
     settings.frame_rate = FRAME_RATE;
     settings.recognition = a
         .library_settings

@@ -104,7 +104,7 @@ impl ComposedRecogniser {
     pub fn new(library: &Library, with_covariance: bool) -> Result<Self> {
         let c = ComposedHmm::new(library)?;
         let roles = library.roles();
-        let online = HmmRegression::new(&c.hmm, &roles.human, &roles.robot)?.online();
+        let online = HmmRegression::new(&c.hmm, &roles.human(), &roles.robot())?.online();
         let mut r = ComposedRecogniser {
             online,
             posterior: vec![0.0; c.actions.len()],
@@ -113,7 +113,7 @@ impl ComposedRecogniser {
             rest_probability: 0.0,
             decision: Decision::Rest,
             with_covariance,
-            n_human: roles.human.len(),
+            n_human: roles.human().len(),
             frames: 0,
         };
         r.sum_belief();

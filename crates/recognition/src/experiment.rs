@@ -425,7 +425,7 @@ impl Scaling {
 fn squared_error(ds: &Dataset, sc: &Scaling, p: &[f64], truth: &[f64]) -> Option<f64> {
     let mut se = 0.0;
     for &j in &ds.scored {
-        let k = ds.roles.robot[j];
+        let k = ds.roles.robot()[j];
         if truth[k].is_nan() {
             return None;
         }
@@ -438,7 +438,7 @@ fn squared_error(ds: &Dataset, sc: &Scaling, p: &[f64], truth: &[f64]) -> Option
 fn human_of(ds: &Dataset, joint: &[f64]) -> Vec<f64> {
     joint
         .chunks_exact(ds.dim)
-        .flat_map(|x| ds.roles.human.iter().map(move |&k| x[k]))
+        .flat_map(|x| ds.roles.human().iter().map(move |&k| x[k]))
         .collect()
 }
 
@@ -542,7 +542,7 @@ fn run_seed(
         .flat_map(|(a, x)| x.test.iter().map(move |t| (a, t)))
         .map(|(a, t)| (a, human_of(ds, &sc.apply(t)), t))
         .collect();
-    let h = ds.roles.human.len();
+    let h = ds.roles.human().len();
     let mut rec = Recogniser::new(&library, settings_for(true, None))?;
     let mut demos = Vec::with_capacity(tests.len());
     for (a, human, joint) in &tests {
@@ -648,7 +648,7 @@ fn score_stream(
     variant: StreamRecogniser,
     s: &ExperimentSettings,
 ) -> Result<StreamScore> {
-    let (h, d) = (ds.roles.human.len(), ds.dim);
+    let (h, d) = (ds.roles.human().len(), ds.dim);
     let mut score = StreamScore {
         correct: 0,
         frames: 0,
@@ -784,7 +784,7 @@ fn check_dataset(ds: &Dataset) -> Result<()> {
         ));
     }
     ds.roles.check(ds.dim)?;
-    if ds.scored.iter().any(|&j| j >= ds.roles.robot.len()) {
+    if ds.scored.iter().any(|&j| j >= ds.roles.robot().len()) {
         return bad("a scored feature is not one of the robot's".into());
     }
     for a in &ds.actions {

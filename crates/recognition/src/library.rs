@@ -230,7 +230,7 @@ impl FittedAction {
         let mut fold_hmms = Vec::new();
         let mut failed_folds = 0;
         let human_hmm =
-            |m: &Model| -> Result<Hmm<Gaussian>> { Ok(action_hmm(m)?.marginal(&roles.human)?) };
+            |m: &Model| -> Result<Hmm<Gaussian>> { Ok(action_hmm(m)?.marginal(&roles.human())?) };
         if folds >= 2 {
             for f in 0..folds {
                 let train: Vec<usize> = (0..n).filter(|k| k % folds != f).collect();
@@ -280,9 +280,9 @@ fn score(model: &Model, roles: &Roles, seq: Frames<'_>, fold: usize) -> Result<H
     let mut track = ActionTrack::new(model, None, roles, false)?;
     let human: Vec<f64> = seq
         .iter()
-        .flat_map(|x| roles.human.iter().map(move |&k| x[k]))
+        .flat_map(|x| roles.human().iter().map(move |&k| x[k]))
         .collect();
-    let h = roles.human.len();
+    let h = roles.human().len();
     let mut own = Vec::with_capacity(seq.len());
     let mut dead = false;
     for x in human.chunks_exact(h) {
@@ -728,7 +728,7 @@ impl Library {
     /// The rest pose: the robot's features of the rest state's mean.
     pub fn rest_pose(&self) -> Vec<f64> {
         self.roles
-            .robot
+            .robot()
             .iter()
             .map(|&k| self.rest.mean[k])
             .collect()
@@ -756,7 +756,7 @@ impl Library {
             .iter()
             .map(|a| {
                 let m = a.recognition.as_ref().unwrap_or(&a.model);
-                Ok(action_hmm(m)?.marginal(&self.roles.human)?)
+                Ok(action_hmm(m)?.marginal(&self.roles.human())?)
             })
             .collect::<Result<Vec<_>>>()?;
         threshold_hmm(&marginals)
@@ -853,10 +853,10 @@ fn calibrate(
         .iter()
         .map(|a| {
             let m = a.recognition.as_ref().unwrap_or(&a.model);
-            Ok(action_hmm(m)?.marginal(&roles.human)?)
+            Ok(action_hmm(m)?.marginal(&roles.human())?)
         })
         .collect::<Result<Vec<_>>>()?;
-    let h = roles.human.len();
+    let h = roles.human().len();
     let (mut per_frame, mut versus) = (Vec::new(), Vec::new());
     // The threshold model of a held-out demonstration of action `a` takes
     // `a`'s states from the model that did not see it.
@@ -925,7 +925,7 @@ fn temperature(
     settings: &LibrarySettings,
     prior: &[f64],
 ) -> Result<(f64, f64)> {
-    let h = roles.human.len();
+    let h = roles.human().len();
     let n = actions.len();
     let log_prior: Vec<f64> = prior.iter().map(|p| p.ln()).collect();
     // Per held-out demonstration: its action and the running ℓ_b(t) of every action, T × A.

@@ -31,9 +31,7 @@ use phasekit_tsc::{Model, OnlinePredictor, Roles};
 pub fn action_hmm(model: &Model) -> Result<Hmm<Gaussian>> {
     match model {
         Model::Hmm(h) => Ok(h.clone()),
-        Model::TscHmm { model, .. } => {
-            Ok(model.union.clone().unwrap_or_else(|| model.base.clone()))
-        }
+        Model::TscHmm { model, .. } => Ok(model.union().unwrap_or(model.base()).clone()),
         Model::Gmm(g) | Model::GmmTsc { mixture: g, .. } => mixture_as_hmm(g),
     }
 }
@@ -63,7 +61,7 @@ pub struct ActionTrack {
 }
 
 impl ActionTrack {
-    /// The track of `model` predicting `roles.robot` from `roles.human`, its
+    /// The track of `model` predicting `roles.robot()` from `roles.human()`, its
     /// likelihood from `recognition` when given (else from `model`); with
     /// `with_covariance` every step also computes the predictive covariance.
     pub fn new(
@@ -73,18 +71,16 @@ impl ActionTrack {
         with_covariance: bool,
     ) -> Result<Self> {
         let online = model.predictor(roles)?.online();
-        let filter = match (recognition, &online) {
-            (Some(r), _) => Some(ForwardFilter::on_dims(&action_hmm(r)?, &roles.human)?),
-            (None, OnlinePredictor::Gmm { .. }) => {
-                Some(ForwardFilter::on_dims(&action_hmm(model)?, &roles.human)?)
-            }
-            (None, OnlinePredictor::Hmm(_) | OnlinePredictor::Gated { .. }) => None,
+        let filter = match (recognition, online.log_likelihood()) {
+            (Some(r), _) => Some(ForwardFilter::on_dims(&action_hmm(r)?, roles.human())?),
+            (None, None) => Some(ForwardFilter::on_dims(&action_hmm(model)?, roles.human())?),
+            (None, Some(_)) => None,
         };
         Ok(ActionTrack {
             online,
             filter,
-            nothing: vec![f64::NAN; roles.human.len()],
-            mean: vec![0.0; roles.robot.len()],
+            nothing: vec![f64::NAN; roles.human().len()],
+            mean: vec![0.0; roles.robot().len()],
             with_covariance,
         })
     }
@@ -97,8 +93,10 @@ impl ActionTrack {
     /// for the action. An error (a frame of the wrong length) changes nothing
     /// useful: the action should be given up until the next reset.
     pub fn step(&mut self, human: &[f64]) -> Result<bool> {
-        let m = self.online.step(human, self.with_covariance)?;
-        self.mean.copy_from_slice(m);
+        let evidence = self
+            .online
+            .step_with_evidence(human, self.with_covariance)?;
+        self.mean.copy_from_slice(self.online.mean());
         match &mut self.filter {
             Some(f) => match f.step(human) {
                 Ok(_) => Ok(false),
@@ -109,34 +107,23 @@ impl ActionTrack {
                 }
                 Err(e) => Err(e.into()),
             },
-            None => Ok(match &self.online {
-                OnlinePredictor::Hmm(r) => r.evidence().rejected,
-                OnlinePredictor::Gated { base, .. } => base.evidence().rejected,
-                // A static GMR's track always has its filter (see `new`).
-                OnlinePredictor::Gmm { .. } => false,
-            }),
+            None => Ok(evidence.rejected),
         }
     }
 
     /// `log p(o¹_{1:t} | λ_a)` of the human frames since the last reset.
     pub fn log_likelihood(&self) -> f64 {
-        match (&self.filter, &self.online) {
-            (Some(f), _) => f.log_likelihood(),
-            (None, OnlinePredictor::Hmm(r)) => r.log_likelihood(),
-            (None, OnlinePredictor::Gated { base, .. }) => base.log_likelihood(),
+        match &self.filter {
+            Some(f) => f.log_likelihood(),
             // A static GMR's track always has its filter (see `new`).
-            (None, OnlinePredictor::Gmm { .. }) => f64::NEG_INFINITY,
+            None => self.online.log_likelihood().unwrap_or(f64::NEG_INFINITY),
         }
     }
 
     /// The predicting model's filtered belief over the states of its
     /// [`action_hmm`] (a static mixture's: the responsibilities of the last frame).
     pub fn belief(&self) -> &[f64] {
-        match &self.online {
-            OnlinePredictor::Hmm(r) => r.belief(),
-            OnlinePredictor::Gated { base, .. } => base.belief(),
-            OnlinePredictor::Gmm { weights, .. } => weights,
-        }
+        self.online.belief()
     }
 
     /// The predicted robot features of the last frame.

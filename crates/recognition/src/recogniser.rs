@@ -285,12 +285,17 @@ impl Recogniser {
         ) || settings.both_statistics)
             .then(|| library.threshold_model().map(|h| h.filter()))
             .transpose()?;
-        let (a, o, d) = (library.len(), roles.robot.len(), library.dim());
+        let (a, o, d) = (library.len(), roles.robot().len(), library.dim());
         let rest = library.rest();
         let rest_covariance = roles
-            .robot
+            .robot()
             .iter()
-            .flat_map(|&i| roles.robot.iter().map(move |&j| rest.covariance[i * d + j]))
+            .flat_map(|&i| {
+                roles
+                    .robot()
+                    .iter()
+                    .map(move |&j| rest.covariance[i * d + j])
+            })
             .collect();
         let end_states = library
             .actions()
@@ -317,7 +322,7 @@ impl Recogniser {
             threshold_dead: false,
             settings,
             limits,
-            n_human: roles.human.len(),
+            n_human: roles.human().len(),
             n_out: o,
             means: vec![0.0; a * o],
             covariances: vec![0.0; a * o * o],
@@ -329,7 +334,7 @@ impl Recogniser {
             decision: Decision::Unknown,
             rejected: false,
             frame_rejected: false,
-            nothing: vec![f64::NAN; roles.human.len()],
+            nothing: vec![f64::NAN; roles.human().len()],
             statistics: (f64::NAN, f64::NAN),
             frames: 0,
             pending_reset: false,

@@ -11,7 +11,7 @@ use phasekit_recognition::{
     PredictionMode, Recogniser, RecogniserSettings, RecognitionError, Rejection,
 };
 use phasekit_tsc::synthetic::{generate_kind, with_velocities, Interaction, Kind};
-use phasekit_tsc::{Method, PresetOptions};
+use phasekit_tsc::{Method, Preset, PresetOptions};
 
 fn settings(rejection: Rejection, prediction: PredictionMode) -> RecogniserSettings {
     let mut s = RecogniserSettings::default();
@@ -116,7 +116,7 @@ fn the_posterior_is_bayes_rule_over_the_filters_likelihoods() {
             .map(|a| {
                 let m = phasekit_recognition::parts::action_hmm(&a.model)
                     .unwrap()
-                    .marginal(&lib.roles().human)
+                    .marginal(lib.roles().human())
                     .unwrap();
                 m.log_likelihood(Frames::new(&h[..(t + 1) * 6], 6).unwrap())
                     .unwrap()
@@ -404,11 +404,8 @@ fn a_library_round_trips_through_its_file_bit_for_bit() {
 fn a_library_of_static_mixtures_scores_frames_as_the_mixture_does() {
     // A `gmm` library: its likelihood is the human marginal's, frame by frame.
     let method = Method::preset(
-        "gmm",
-        &PresetOptions {
-            states: 6,
-            ..PresetOptions::default()
-        },
+        Preset::Gmm,
+        &PresetOptions::builder().states(6).build().unwrap(),
     )
     .unwrap();
     let lib = fit(&[Kind::Wave, Kind::Handover], &method);
@@ -615,12 +612,12 @@ fn a_second_model_can_recognise_while_the_first_predicts() {
     let data = common::training(&[Kind::Handshake, Kind::Wave]);
     let predict = common::hmm();
     let recognise = Method::preset(
-        "hmm",
-        &PresetOptions {
-            states: 6,
-            reg: 1e-3,
-            ..PresetOptions::default()
-        },
+        Preset::Hmm,
+        &PresetOptions::builder()
+            .states(6)
+            .reg(1e-3)
+            .build()
+            .unwrap(),
     )
     .unwrap();
     let actions: Vec<(&str, &SequenceSet, &Method)> = data
@@ -646,7 +643,7 @@ fn a_second_model_can_recognise_while_the_first_predicts() {
             assert_eq!(action_hmm(rec).unwrap().n_states(), 6);
             let ll = action_hmm(rec)
                 .unwrap()
-                .marginal(&lib.roles().human)
+                .marginal(lib.roles().human())
                 .unwrap()
                 .log_likelihood(Frames::new(&h[..(t + 1) * 6], 6).unwrap())
                 .unwrap();

@@ -346,7 +346,7 @@ pub fn fit_library(a: &FitArgs, settings: &LibraryArgs) -> Result<()> {
     let (spec, defaults) = feature_spec(&a.columns);
     let named =
         parse_method(&a.method, &options).map_err(|e| CliError::new(format!("--method: {e}")))?;
-    let lib_settings = settings.settings(options.reg)?;
+    let lib_settings = settings.settings(options.reg())?;
     let dirs = action_dirs(dir)?;
     let name_of = |d: &Path| {
         d.file_name()
@@ -417,10 +417,7 @@ pub fn fit_library(a: &FitArgs, settings: &LibraryArgs) -> Result<()> {
         .iter()
         .map(|p| SequenceSet::new(&p.seqs, dim))
         .collect::<std::result::Result<Vec<_>, _>>()?;
-    let roles = Roles {
-        human: layout.human.clone(),
-        robot: layout.robot.clone(),
-    };
+    let roles = Roles::new(layout.human.clone(), layout.robot.clone())?;
     let frames: usize = per_action.iter().map(|p| p.frames).sum();
     let bar = output::spinner(&format!(
         "fitting {} to {} actions ({frames} frames)",

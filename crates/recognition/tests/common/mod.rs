@@ -6,15 +6,12 @@
 use phasekit_emission::SequenceSet;
 use phasekit_recognition::{Library, LibrarySettings};
 use phasekit_tsc::synthetic::{generate_kind, with_velocities, Kind};
-use phasekit_tsc::{Method, PresetOptions, Roles};
+use phasekit_tsc::{Method, Preset, PresetOptions, Roles};
 use std::sync::OnceLock;
 
 /// Human: hand position and velocity (0..6); robot: the same (6..12).
 pub fn roles() -> Roles {
-    Roles {
-        human: (0..6).collect(),
-        robot: (6..12).collect(),
-    }
+    Roles::new((0..6).collect(), (6..12).collect()).unwrap()
 }
 
 /// `n` demonstrations of `kind` as joint features (`T × 12`).
@@ -35,7 +32,7 @@ pub fn human(joint: &[f64]) -> Vec<f64> {
 
 /// The paper's HMM (4 states, reg 1e-2) as a method.
 pub fn hmm() -> Method {
-    Method::preset("hmm", &PresetOptions::default()).unwrap()
+    Method::preset(Preset::Hmm, &PresetOptions::default()).unwrap()
 }
 
 /// Training sets of the given kinds: 10 demonstrations each (seed 1).
