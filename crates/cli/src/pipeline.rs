@@ -491,7 +491,9 @@ impl<'a> StreamPredictor<'a> {
             rejected = true;
         }
         let observed = self.features.iter().filter(|v| !v.is_nan()).count();
-        let evidence = self.online.step_with_evidence(&self.features, with_covariance)?;
+        let evidence = self
+            .online
+            .step_with_evidence(&self.features, with_covariance)?;
         rejected |= evidence.rejected;
         if rejected {
             self.diff.forget_last();

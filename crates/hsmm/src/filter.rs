@@ -157,4 +157,3 @@ impl<E: Emission, D: Duration> Hsmm<E, D> {
         HsmmFilter::new(self.clone())
     }
 }
-

@@ -149,7 +149,11 @@ impl OnlinePredictor {
     /// its log predictive density under the (base) model and whether no state
     /// explains it (the frame was then not used; see `phasekit_gmr`). The
     /// prediction is read with [`OnlinePredictor::mean`].
-    pub fn step_with_evidence(&mut self, human: &[f64], with_covariance: bool) -> Result<FrameEvidence> {
+    pub fn step_with_evidence(
+        &mut self,
+        human: &[f64],
+        with_covariance: bool,
+    ) -> Result<FrameEvidence> {
         Ok(match &mut self.0 {
             OnlineKind::Hmm(r) => {
                 if with_covariance {
