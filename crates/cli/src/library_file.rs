@@ -39,6 +39,9 @@ pub struct ActionInfo {
     pub frames: usize,
     /// What the fit did.
     pub fit: FitSummary,
+    /// The action's own method (`--action-method`), when not the library's.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub method: Option<String>,
 }
 
 /// A library file's content.
@@ -59,6 +62,10 @@ pub struct LibraryFile {
     pub standardisation: Option<Standardisation>,
     /// The method every action was fitted with.
     pub method: MethodInfo,
+    /// The method of the second model per action that recognises
+    /// (`--recognition-method`), if any.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub recognition_method: Option<String>,
     /// What was fitted for each action, in the library's order.
     pub actions: Vec<ActionInfo>,
     /// The library.
@@ -105,9 +112,28 @@ impl LibraryFile {
             feature_spec,
             standardisation,
             method,
+            recognition_method: None,
             actions,
             library,
         }
+    }
+
+    /// The methods in words: `hmm`, `hmm, recognised by hmm:states=12,reg=0.001`,
+    /// `hmm (rocket: tsc-hmm)`.
+    pub fn methods_text(&self) -> String {
+        let mut s = self.method.spec.clone();
+        let own: Vec<String> = self
+            .actions
+            .iter()
+            .filter_map(|a| a.method.as_ref().map(|m| format!("{}: {m}", a.name)))
+            .collect();
+        if !own.is_empty() {
+            s += &format!(" ({})", own.join(", "));
+        }
+        if let Some(r) = &self.recognition_method {
+            s += &format!(", recognised by {r}");
+        }
+        s
     }
 
     /// Writes the file atomically.

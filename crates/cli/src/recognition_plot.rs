@@ -43,7 +43,7 @@ pub fn posterior_svg(file: &LibraryFile, r: &Recognition) -> Result<String> {
                 .file_name()
                 .and_then(|n| n.to_str())
                 .unwrap_or("demonstration"),
-            file.method.spec,
+            file.methods_text(),
             names.len()
         );
         let mut chart = ChartBuilder::on(&root)
@@ -150,9 +150,15 @@ pub fn accuracy_svg(r: &Report) -> Result<String> {
         let root = root
             .titled(
                 &format!(
-                    "Which interaction? Accuracy after observing part of each test demonstration ({} seed{})",
+                    "Which interaction? Accuracy after observing part of each test demonstration ({} seed{}{})",
                     r.seeds,
-                    if r.seeds == 1 { "" } else { "s" }
+                    if r.seeds == 1 { "" } else { "s" },
+                    r.settings
+                        .recognition
+                        .as_ref()
+                        .map_or(String::new(), |(label, _)| format!(
+                            "; recognised by {label}"
+                        ))
                 ),
                 ("sans-serif", 18),
             )

@@ -461,3 +461,70 @@ fn recognition_commands_have_help_with_examples() {
             .stdout(predicate::str::contains("Example"));
     }
 }
+
+#[test]
+fn a_library_records_the_methods_that_recognise_and_predict() {
+    let (dir, data) = library_data();
+    let lib = dir.path().join("lib.json");
+    let out = phasekit()
+        .args([
+            "fit",
+            "--library",
+            "--method",
+            "hmm",
+            "--recognition-method",
+            "hmm:states=3",
+            "--action-method",
+            "wave=gmm:states=3",
+            "--format",
+            "json",
+            "--data",
+        ])
+        .arg(&data)
+        .arg("-o")
+        .arg(&lib)
+        .assert()
+        .success()
+        .get_output()
+        .stdout
+        .clone();
+    let report: serde_json::Value = serde_json::from_slice(&out).unwrap();
+    assert_eq!(report["recognition_method"], "hmm:states=3");
+    let file: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&lib).unwrap()).unwrap();
+    assert_eq!(file["recognition_method"], "hmm:states=3");
+    let actions = file["actions"].as_array().unwrap();
+    let wave = actions.iter().find(|a| a["name"] == "wave").unwrap();
+    assert_eq!(wave["method"], "gmm:states=3");
+    assert!(actions
+        .iter()
+        .filter(|a| a["name"] != "wave")
+        .all(|a| a.get("method").is_none()));
+    // An action the data does not have is refused by name.
+    phasekit()
+        .args([
+            "fit",
+            "--library",
+            "--action-method",
+            "fistbump=hmm",
+            "--data",
+        ])
+        .arg(&data)
+        .arg("-o")
+        .arg(dir.path().join("other.json"))
+        .assert()
+        .failure()
+        .stderr(predicate::str::contains("no action `fistbump`"));
+    // The picture says what recognised.
+    phasekit()
+        .args(["plot", "recognition", "--model"])
+        .arg(&lib)
+        .arg("--data")
+        .arg(data.join("wave/test_00.csv"))
+        .arg("-o")
+        .arg(dir.path().join("p.svg"))
+        .assert()
+        .success();
+    let svg = std::fs::read_to_string(dir.path().join("p.svg")).unwrap();
+    assert!(svg.contains("hmm (wave: gmm:states=3), recognised by hmm:states=3"));
+}

@@ -306,6 +306,7 @@ Examples:
 struct LibraryReport<'a> {
     library: bool,
     method: &'a str,
+    recognition_method: Option<&'a str>,
     actions: Vec<ActionReport<'a>>,
     features: &'a [String],
     standardised: bool,
@@ -473,13 +474,14 @@ pub fn fit_library(a: &FitArgs, settings: &LibraryArgs) -> Result<()> {
         .into_iter()
         .zip(summaries)
         .map(|(p, fit)| ActionInfo {
+            method: own.iter().find(|o| o.0 == p.name).map(|o| o.1.clone()),
             name: p.name,
             demonstrations: p.files,
             frames: p.frames,
             fit,
         })
         .collect();
-    let file = LibraryFile::new(
+    let mut file = LibraryFile::new(
         layout,
         spec,
         standardisation,
@@ -490,6 +492,7 @@ pub fn fit_library(a: &FitArgs, settings: &LibraryArgs) -> Result<()> {
         infos,
         library,
     );
+    file.recognition_method = recognition.map(|r| r.label);
     if let Some(path) = &a.output {
         file.save(path)?;
     }
@@ -498,6 +501,7 @@ pub fn fit_library(a: &FitArgs, settings: &LibraryArgs) -> Result<()> {
     let report = LibraryReport {
         library: true,
         method: &file.method.spec,
+        recognition_method: file.recognition_method.as_deref(),
         actions: file
             .actions
             .iter()
