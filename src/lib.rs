@@ -16,7 +16,11 @@
 //!   online;
 //! * [`tsc`]: transition state clustering (the TSC-HMM of Hahne et al.,
 //!   HRI'24, and Krishnan-style TSC) as compositions of the above, and the
-//!   named methods (presets) the `phasekit` command runs.
+//!   named methods (presets) the `phasekit` command runs;
+//! * [`recognition`]: which interaction is happening: a library of
+//!   interactions (one model per action), online recognition from the
+//!   human-marginal filters, rejection of unknown motions, and the composed
+//!   HMM for continuous streams.
 //!
 //! `ARCHITECTURE.md` at the repository's root says which crate owns which
 //! formula and how to add an emission, a composition or a command.
@@ -67,4 +71,5 @@ pub use phasekit_gmm as gmm;
 pub use phasekit_gmr as gmr;
 pub use phasekit_hmm as hmm;
 pub use phasekit_hsmm as hsmm;
+pub use phasekit_recognition as recognition;
 pub use phasekit_tsc as tsc;

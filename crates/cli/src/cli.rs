@@ -45,6 +45,9 @@ pub enum Command {
     /// The whole pipeline on generated interactions: fit, compare, plot.
     #[command(after_help = DEMO_EXAMPLES)]
     Demo(DemoArgs),
+    /// Which interaction is it? Per-frame posterior of each action of a library, and the decision.
+    #[command(after_help = crate::commands::recognise::RECOGNISE_EXAMPLES)]
+    Recognise(crate::commands::recognise::RecogniseArgs),
 }
 
 /// `--velocity` values.
@@ -330,6 +333,12 @@ pub struct FitArgs {
     /// Shorthand for --format json
     #[arg(long, conflicts_with = "format")]
     pub json: bool,
+    /// Fit a library of interactions: one model per action folder of --data, in one file
+    #[arg(long)]
+    pub library: bool,
+    /// Library settings.
+    #[command(flatten)]
+    pub library_settings: crate::commands::recognise::LibraryArgs,
 }
 
 const SEGMENT_EXAMPLES: &str = "\
@@ -461,6 +470,10 @@ pub struct StreamArgs {
     /// (a frame with nothing observed) or skip (no frame)
     #[arg(long, value_enum, value_name = "WHAT", default_value = "error")]
     pub on_bad_line: BadLine,
+    /// With a library: composed (one HMM with a rest state; the default) or per-action (one filter per action,
+    /// reset when an interaction ends, unknown motions rejected)
+    #[arg(long, value_enum, value_name = "HOW")]
+    pub recogniser: Option<crate::commands::recognise::StreamMode>,
 }
 
 const EVALUATE_EXAMPLES: &str = "\
@@ -535,6 +548,12 @@ pub struct EvaluateArgs {
     /// (runs of 10 frames of one side)
     #[arg(long, value_enum, value_name = "HOW", default_value = "values")]
     pub missing_mode: crate::experiment::RemovalMode,
+    /// prediction (the paper's experiment, told the action) or recognition (which interaction is it?)
+    #[arg(long, value_enum, default_value = "prediction")]
+    pub task: crate::commands::recognise::Task,
+    /// Library settings (--task recognition).
+    #[command(flatten)]
+    pub library_settings: crate::commands::recognise::LibraryArgs,
 }
 
 const PLOT_EXAMPLES: &str = "\
@@ -570,6 +589,9 @@ pub enum PlotKind {
         after_help = "Examples:\n  phasekit plot states --model m.json --data demos/ -o states.svg\n  phasekit plot states --model m.json --data a.csv b.csv --x p1_wrist_x --y p1_wrist_y \\\n      -o states.svg\n  phasekit plot states --model m.json --data demos/ --view 3d -o states3d.svg\n\nThe ellipses are those of the model that predicts: a union TSC-HMM's re-trained states,\nλ_T's drawn dashed as transition states; gmm-tsc's mixture, its kept clusters dashed.\nThe 3-D view is an oblique (cabinet) projection of --x, --y (depth) and --z [default:\nthe robot's x, y, z columns], with the outlines of the projected 2σ ellipsoids."
     )]
     States(PlotStatesArgs),
+    /// Recognition: the posterior of each action over a demonstration, or the accuracy curve of an evaluation.
+    #[command(after_help = crate::commands::recognise::PLOT_RECOGNITION_EXAMPLES)]
+    Recognition(crate::commands::recognise::PlotRecognitionArgs),
 }
 
 /// Arguments of a plot of one demonstration.

@@ -12,11 +12,14 @@ pub mod error;
 pub mod experiment;
 pub mod inputs;
 pub mod interrupt;
+pub mod library_file;
 pub mod model_file;
 pub mod npy;
 pub mod output;
 pub mod pipeline;
 pub mod plot;
+pub mod recognition_plot;
+pub mod recognition_report;
 pub mod units;
 
 pub use error::{CliError, Result};
@@ -33,6 +36,7 @@ pub fn run(cli: cli::Cli) -> Result<()> {
         Command::Evaluate(a) => commands::evaluate::run(a),
         Command::Plot(a) => commands::plot::run(a),
         Command::Demo(a) => commands::demo::run(a),
+        Command::Recognise(a) => commands::recognise::run(a),
     }
 }
 
@@ -43,6 +47,7 @@ fn check_outputs(command: &cli::Command) -> Result<()> {
     use cli::{Command, PlotKind};
     use std::path::Path;
     match command {
+        Command::Fit(a) if a.library => commands::recognise::check_fit_output(a)?,
         Command::Fit(a) => {
             if let Some(o) = &a.output {
                 output::check_extension(o, &["json"], true, "a model file is JSON")?;
@@ -57,6 +62,7 @@ fn check_outputs(command: &cli::Command) -> Result<()> {
                     (&c.output, &c.model, vec![c.data.clone()])
                 }
                 PlotKind::States(s) => (&s.output, &s.model, inputs::data_files(&s.data)?),
+                PlotKind::Recognition(r) => return commands::recognise::check_plot_output(r),
             };
             output::check_extension(o, &["svg"], false, "plot writes SVG")?;
             let ins: Vec<&Path> = std::iter::once(model.as_path())

@@ -282,6 +282,9 @@ impl ModelFile {
         })?;
         match header.format.as_ref().and_then(|f| f.as_str()) {
             Some(FORMAT) => {}
+            Some(crate::library_file::FORMAT) => {
+                return Err(crate::library_file::not_a_model(path))
+            }
             Some(other) => {
                 return Err(CliError::new(format!(
                     "{p}: not a phasekit model file (its format is `{other}`, not `{FORMAT}`)"

@@ -210,6 +210,26 @@ impl OnlinePredictor {
         }
     }
 
+    /// The filtered belief over the states of the HMM the prediction filters
+    /// with (the gated TSC-HMM's: `λ`'s); a static GMR's: the responsibilities
+    /// of the last frame.
+    pub fn belief(&self) -> &[f64] {
+        match &self.0 {
+            OnlineKind::Hmm(r) | OnlineKind::Gated { base: r, .. } => r.belief(),
+            OnlineKind::Gmm { weights, .. } => weights,
+        }
+    }
+
+    /// `log p(x^h_{1:t})` of the human frames since the last reset under the
+    /// HMM the prediction filters with (the gated TSC-HMM's: `λ`'s); `None`
+    /// for a static GMR, which has no filter.
+    pub fn log_likelihood(&self) -> Option<f64> {
+        match &self.0 {
+            OnlineKind::Hmm(r) | OnlineKind::Gated { base: r, .. } => Some(r.log_likelihood()),
+            OnlineKind::Gmm { .. } => None,
+        }
+    }
+
     /// Starts a new demonstration.
     pub fn reset(&mut self) {
         match &mut self.0 {

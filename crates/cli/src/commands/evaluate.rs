@@ -397,6 +397,10 @@ pub fn evaluate(
 
 /// Runs `phasekit evaluate`.
 pub fn run(a: &EvaluateArgs) -> Result<()> {
+    if a.task == super::recognise::Task::Recognition {
+        return crate::recognition_report::run(a);
+    }
+    crate::recognition_report::check_prediction_task(a)?;
     setup_threads(a.model.threads)?;
     let options = preset_options(&a.model)?;
     let (spec, defaults) = feature_spec(&a.columns);

@@ -187,6 +187,9 @@ pub fn fit_tables(
 
 /// Runs `phasekit fit`.
 pub fn run(a: &FitArgs) -> Result<()> {
+    if a.library {
+        return super::recognise::fit_library(a, &a.library_settings);
+    }
     let format = if a.json { Some(Format::Json) } else { a.format };
     if a.output.is_none() && format.is_none() {
         bail!("nothing to do: give -o MODEL.json to save the model (and/or --format json to print the fit report)");

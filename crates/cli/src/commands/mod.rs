@@ -5,6 +5,7 @@ pub mod evaluate;
 pub mod fit;
 pub mod plot;
 pub mod predict;
+pub mod recognise;
 pub mod segment;
 pub mod stream;
 

@@ -24,6 +24,7 @@ pub fn run(a: &PlotArgs) -> Result<()> {
             };
             output::write_string(&p.output, &svg)
         }
+        PlotKind::Recognition(p) => super::recognise::plot(p),
         PlotKind::States(p) => {
             let unit = p.unit.resolve()?;
             let mf = ModelFile::load(&p.model)?;

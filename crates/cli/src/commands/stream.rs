@@ -9,11 +9,11 @@
 //! predictor's caches are bounded.
 
 use crate::cli::{BadLine, StreamArgs};
+use crate::commands::recognise::{StreamTarget, Streamer};
 use crate::data::{excerpt, name_list, parse_cell};
 use crate::error::{CliError, Result};
-use crate::model_file::ModelFile;
 use crate::output::{csv_header, is_broken_pipe};
-use crate::pipeline::{prediction_header, prediction_line, FrameStatus, StreamPredictor};
+use crate::pipeline::FrameStatus;
 use std::io::{BufRead, Write};
 use std::time::Instant;
 
@@ -430,8 +430,7 @@ enum Parsed {
 
 struct Stream<'m> {
     a: &'m StreamArgs,
-    mf: &'m ModelFile,
-    sp: StreamPredictor<'m>,
+    sp: Streamer<'m>,
     names: Vec<String>,
     mapping: Option<Mapping>,
     layout: Option<Layout>,
@@ -567,7 +566,7 @@ impl<'m> Stream<'m> {
 
     fn write_header(&mut self, out: &mut impl Write) -> std::io::Result<()> {
         if !self.header_written && !self.a.no_header {
-            let mut h = prediction_header(self.mf, self.a.covariance);
+            let mut h = self.sp.header(self.a.covariance);
             h.push("status".into());
             writeln!(out, "{}", csv_header(&h))?;
         }
@@ -577,10 +576,12 @@ impl<'m> Stream<'m> {
 
     /// Predicts the frame in `raw` and writes its line.
     fn predict(&mut self, out: &mut impl Write, line_no: usize) -> Result<std::io::Result<()>> {
-        match self.sp.step(&self.raw, self.a.covariance) {
-            Ok((mean, cov)) => {
-                prediction_line(self.frame, mean, cov, &mut self.line_out);
-                let status = self.sp.last().status;
+        let cov = self.a.covariance;
+        match self
+            .sp
+            .step_line(&self.raw, self.frame, cov, &mut self.line_out)
+        {
+            Ok(status) => {
                 self.tally.count(status);
                 self.line_out.push(',');
                 self.line_out.push_str(status.word());
@@ -597,12 +598,7 @@ impl<'m> Stream<'m> {
                     "written with empty values and status `failed`",
                 );
                 self.tally.failed += 1;
-                let o = self.mf.layout.robot.len();
-                let cells = if self.a.covariance {
-                    o + o * (o + 1) / 2
-                } else {
-                    o
-                };
+                let cells = self.sp.header(cov).len() - 1;
                 self.line_out.clear();
                 self.line_out.push_str(&self.frame.to_string());
                 self.line_out.push_str(&",".repeat(cells));
@@ -620,16 +616,16 @@ impl<'m> Stream<'m> {
 
 /// Runs `phasekit stream`.
 pub fn run(a: &StreamArgs) -> Result<()> {
-    let mf = ModelFile::load(&a.model)?;
-    let sp = StreamPredictor::new(&mf)?;
-    let names = mf.layout.human_columns.clone();
+    let target = StreamTarget::load(&a.model)?;
+    let sp = target.predictor(a.recogniser, a.covariance)?;
+    let names = target.human_columns().to_vec();
     let n_in = sp.n_in();
     let mapping = a
         .columns
         .as_ref()
         .map(|c| mapping(c, n_in, &names))
         .transpose()?;
-    if mf.novelty.is_none() && !a.quiet {
+    if target.lacks_novelty() && !a.quiet {
         eprintln!(
             "phasekit: note: {} has no out-of-distribution threshold (written by an older phasekit): no frame is flagged `ood`; refit the model to have them flagged",
             a.model.display()
@@ -637,7 +633,6 @@ pub fn run(a: &StreamArgs) -> Result<()> {
     }
     let mut s = Stream {
         a,
-        mf: &mf,
         sp,
         names,
         mapping,
