@@ -97,7 +97,11 @@ fn version_1_model_files_load_round_trip_and_predict_as_written() {
         obj.insert("stop".into(), stop.into());
         assert_eq!(serde_json::to_value(&fit).unwrap(), fit_v1, "{name}: fit");
 
-        // The same predictions, bit for bit.
+        // The same predictions to 1e-12 (metres: a picometre): the files were
+        // written before the Gaussian's register-tiled log-density kernels,
+        // which round the whitened norms in another order, so the numbers
+        // written then and computed now agree to rounding (a few units in the
+        // last place), not to the bit.
         let predicted = model
             .predictor(&roles)
             .unwrap()
@@ -107,11 +111,16 @@ fn version_1_model_files_load_round_trip_and_predict_as_written() {
         assert_eq!(written.len(), human.len(), "{name}");
         for (t, row) in written.iter().enumerate() {
             let want = numbers(&row[1..]);
-            assert_eq!(
-                predicted.mean[t * 3..(t + 1) * 3],
-                want[..],
-                "{name}: frame {t}"
-            );
+            for (k, (&got, &w)) in predicted.mean[t * 3..(t + 1) * 3]
+                .iter()
+                .zip(&want)
+                .enumerate()
+            {
+                assert!(
+                    (got - w).abs() <= 1e-12,
+                    "{name}: frame {t}, value {k}: {got:e} now, {w:e} written"
+                );
+            }
         }
 
         // The same segmentation: the written states are λ's for a TSC-HMM
