@@ -2,10 +2,14 @@
 //! ([`Predictor`]) and frame by frame for a control loop ([`OnlinePredictor`]).
 
 use crate::detect::select;
+use crate::emission_choice::AnyEmission;
 use crate::error::Result;
 use crate::roles::Roles;
 use phasekit_emission::Frames;
-use phasekit_gmr::{FrameEvidence, GmmRegression, HmmRegression, OnlineRegression, Prediction};
+use phasekit_gmr::{FrameEvidence, GmmRegression, Prediction};
+
+type HmmRegression = phasekit_gmr::HmmRegression<AnyEmission>;
+type OnlineRegression = phasekit_gmr::OnlineRegression<AnyEmission>;
 
 /// Predicts the robot's dims from the human's, over whole sequences, causally
 /// (made by `Model::predictor`).
@@ -149,7 +153,11 @@ impl OnlinePredictor {
     /// its log predictive density under the (base) model and whether no state
     /// explains it (the frame was then not used; see `phasekit_gmr`). The
     /// prediction is read with [`OnlinePredictor::mean`].
-    pub fn step_with_evidence(&mut self, human: &[f64], with_covariance: bool) -> Result<FrameEvidence> {
+    pub fn step_with_evidence(
+        &mut self,
+        human: &[f64],
+        with_covariance: bool,
+    ) -> Result<FrameEvidence> {
         Ok(match &mut self.0 {
             OnlineKind::Hmm(r) => {
                 if with_covariance {
