@@ -677,3 +677,15 @@ impl StateMoments for AnyEmission {
         self.covariance(i)
     }
 }
+
+/// The same HMM with its emission held as an [`AnyEmission`] (to build a
+/// `Predictor` from an HMM of a concrete emission type).
+pub fn any_hmm<E: Emission + Into<AnyEmission>>(
+    hmm: phasekit_hmm::Hmm<E>,
+) -> phasekit_hmm::Result<phasekit_hmm::Hmm<AnyEmission>> {
+    phasekit_hmm::Hmm::new(
+        hmm.start().to_vec(),
+        hmm.transition().to_vec(),
+        hmm.emission().clone().into(),
+    )
+}
