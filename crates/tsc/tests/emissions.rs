@@ -283,8 +283,8 @@ fn an_emission_without_a_conditional_is_segmented_by_the_tsc_hmm() {
         .window(1)
         .build()
         .unwrap();
-    let (m, report) = TscHmm::fit_with(&data, &roles, &settings, |s, d| Poisson::unit(s, d))
-        .unwrap_or_else(|e| panic!("{e}"));
+    let (m, report) =
+        TscHmm::fit_with(&data, &roles, &settings, Poisson::unit).unwrap_or_else(|e| panic!("{e}"));
     assert!(report.segments >= 1);
     assert_eq!(m.union().unwrap().n_states(), 6);
     let seq = data.iter().next().unwrap();
@@ -298,6 +298,6 @@ fn an_emission_without_a_conditional_is_segmented_by_the_tsc_hmm() {
         .detector(phasekit_tsc::Detector::WorstPrediction { fraction: 0.2 })
         .build()
         .unwrap();
-    let err = TscHmm::fit_with(&data, &roles, &worst, |s, d| Poisson::unit(s, d)).unwrap_err();
+    let err = TscHmm::fit_with(&data, &roles, &worst, Poisson::unit).unwrap_err();
     assert!(err.to_string().contains("conditional"), "{err}");
 }
