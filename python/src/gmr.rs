@@ -60,7 +60,8 @@ impl GmrCore {
                 "Gaussian mixture regression needs a Gaussian HMM (GaussianHMM)",
             ));
         };
-        let r = HmmRegression::new(h, &input, &output).map_err(value_error)?;
+        let h = phasekit::tsc::emission_choice::any_hmm(h.clone()).map_err(value_error)?;
+        let r = HmmRegression::new(&h, &input, &output).map_err(value_error)?;
         Ok(GmrCore {
             predictor: Predictor::hmm(r),
             n_in: input.len(),

@@ -107,6 +107,11 @@ pub enum BadLine {
     Skip,
 }
 
+/// An emission name (`full`, `diag`, `spherical`, `tied`, `student-t`, `gmm-K`).
+fn parse_emission(s: &str) -> std::result::Result<phasekit_tsc::EmissionKind, String> {
+    s.parse()
+}
+
 /// A covariance regularisation: a finite number in `[0, 1e100]`, parsed as such
 /// (so that `-1` is a number, refused for what it is).
 fn parse_reg(s: &str) -> Result<f64, String> {
@@ -270,6 +275,10 @@ pub struct ModelArgs {
     /// Seed of every random choice of the fit
     #[arg(long, value_name = "N", default_value_t = 0)]
     pub seed: u64,
+    /// Emission of every HMM state: full (default), diag, spherical, tied (Gaussians),
+    /// student-t (robust to outlying frames), gmm-K (K full Gaussians per state, e.g. gmm-2)
+    #[arg(long, value_name = "NAME", default_value = "full", value_parser = parse_emission)]
+    pub emission: phasekit_tsc::EmissionKind,
     /// Z-score every feature with the training frames' mean and std (stored in the model file)
     #[arg(long, alias = "standardize")]
     pub standardise: bool,

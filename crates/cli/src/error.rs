@@ -64,7 +64,7 @@ impl From<phasekit_tsc::TscError> for CliError {
 /// `--tsc-states`), with `value` when given (`--window 4`); a parameter
 /// without a flag keeps the library's name in backticks.
 pub fn flag(param: &'static str, value: Option<&str>) -> String {
-    const FLAGS: [&str; 13] = [
+    const FLAGS: [&str; 14] = [
         "states",
         "tsc_states",
         "window",
@@ -78,6 +78,7 @@ pub fn flag(param: &'static str, value: Option<&str>) -> String {
         "rho",
         "time_clusters",
         "method",
+        "emission",
     ];
     let name = match param {
         p if FLAGS.contains(&p) => format!("--{}", p.replace('_', "-")),

@@ -29,7 +29,8 @@ pub struct NamedMethod {
 /// Parses `NAME[:key=value,...]` on top of `defaults`. Keys: `states` (a number or
 /// `auto`), `tsc-states` (a number; `auto` or 0 for gmm-tsc's automatic transition
 /// clusters), `window`, `reg`, `max-iter`, `tol`, `restarts`, `seed`, `select`
-/// (`bic`|`gmeans`), `max-states`, `rho`, `time-clusters`. The preset checks the result.
+/// (`bic`|`gmeans`), `max-states`, `rho`, `time-clusters`, `emission` (`full`, `diag`,
+/// `spherical`, `tied`, `student-t`, `gmm-K`). The preset checks the result.
 pub fn parse_method(spec: &str, defaults: &PresetOptions) -> Result<NamedMethod, String> {
     let (name, rest) = spec.split_once(':').unwrap_or((spec, ""));
     let mut o = defaults.to_builder();
@@ -61,6 +62,12 @@ pub fn parse_method(spec: &str, defaults: &PresetOptions) -> Result<NamedMethod,
             "max-states" => o = o.max_states(v.parse().map_err(|e| bad(&e))?),
             "rho" => o = o.rho(v.parse().map_err(|e| bad(&e))?),
             "time-clusters" => o = o.time_clusters(v.parse().map_err(|e| bad(&e))?),
+            "emission" => {
+                o = o.emission(
+                    v.parse::<phasekit_tsc::EmissionKind>()
+                        .map_err(|e| bad(&e))?,
+                )
+            }
             other => return Err(format!("unknown key `{other}` in `{spec}`")),
         }
     }

@@ -17,8 +17,8 @@
 
 use crate::data::{FeatureSpec, Layout};
 use crate::error::{CliError, Result};
-use phasekit_emission::{Emission, Frames, Gaussian};
-use phasekit_tsc::{FitSummary, Method, Model, Roles};
+use phasekit_emission::Frames;
+use phasekit_tsc::{FitSummary, Method, Model, Roles, StateMoments};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -391,12 +391,12 @@ impl ModelFile {
     }
 }
 
-/// Every Gaussian emission of a model, with what it is.
-fn gaussians(model: &Model) -> Vec<(&'static str, &Gaussian)> {
+/// Every emission of a model, with what it is.
+fn gaussians(model: &Model) -> Vec<(&'static str, &dyn StateMoments)> {
     match model {
-        Model::Hmm(h) => vec![("the HMM", h.emission())],
+        Model::Hmm(h) => vec![("the HMM", h.emission() as &dyn StateMoments)],
         Model::TscHmm { model, .. } => {
-            let mut v = vec![
+            let mut v: Vec<(&'static str, &dyn StateMoments)> = vec![
                 ("the base HMM", model.base().emission()),
                 ("the transition HMM", model.transition().emission()),
             ];
@@ -405,9 +405,9 @@ fn gaussians(model: &Model) -> Vec<(&'static str, &Gaussian)> {
             }
             v
         }
-        Model::Gmm(g) => vec![("the mixture", g.components())],
+        Model::Gmm(g) => vec![("the mixture", g.components() as &dyn StateMoments)],
         Model::GmmTsc { tsc, mixture } => vec![
-            ("the mixture", mixture.components()),
+            ("the mixture", mixture.components() as &dyn StateMoments),
             ("the windowed mixture", tsc.mixture().components()),
             (
                 "the transition mixture",
@@ -422,11 +422,11 @@ fn gaussians(model: &Model) -> Vec<(&'static str, &Gaussian)> {
 /// than the state is wide, and the state cannot describe any data.
 const MAX_MEAN_TO_SPREAD: f64 = 4_503_599_627_370_496.0;
 
-/// Refuses a Gaussian whose means are too large for its spread to be represented
+/// Refuses a state whose means are too large for its spread to be represented
 /// (e.g. means of 1e200 with variances of 1e-2).
-fn check_scale(what: &str, g: &Gaussian) -> Result<()> {
-    for k in 0..g.n_states() {
-        let (mean, cov) = (g.mean(k), g.covariance(k));
+fn check_scale(what: &str, g: &dyn StateMoments) -> Result<()> {
+    for k in 0..g.moment_states() {
+        let (mean, cov) = (g.state_mean(k), g.state_covariance(k));
         for (d, m) in mean.iter().enumerate() {
             let sd = cov[(d, d)].sqrt();
             let resolvable = m.is_finite() && sd > 0.0 && m.abs() <= MAX_MEAN_TO_SPREAD * sd;

@@ -42,8 +42,11 @@ pub trait Conditional: Emission {
     /// What is precomputed for one `(input, output)` split.
     type Split: ConditionalSplit;
 
-    /// Precomputes the conditionals of `output` given `input` (each non-empty,
-    /// in range, no repeats; the two disjoint).
+    /// Precomputes the conditionals of `output` given `input` (each in range,
+    /// no repeats; the two disjoint; `output` non-empty). An empty `input`
+    /// gives the outputs' marginals (what a regression predicts for a frame
+    /// whose inputs are all missing); an emission that cannot do that
+    /// returns an error.
     fn conditional(&self, input: &[usize], output: &[usize]) -> Result<Self::Split>;
 }
 
@@ -79,9 +82,12 @@ pub trait ConditionalSplit: Clone + Debug + Send + Sync {
 }
 
 /// Checks an `(input, output)` split of a `dim`-dimensional emission: both
-/// valid dimension lists ([`crate::check_dims`]) and disjoint.
+/// valid dimension lists ([`crate::check_dims`]; the input may be empty, for
+/// the outputs' marginals) and disjoint.
 pub fn check_split(input: &[usize], output: &[usize], dim: usize) -> Result<()> {
-    crate::check_dims(input, dim)?;
+    if !input.is_empty() {
+        crate::check_dims(input, dim)?;
+    }
     crate::check_dims(output, dim)?;
     if let Some(d) = input.iter().find(|d| output.contains(d)) {
         return Err(crate::EmissionError::InvalidDims {

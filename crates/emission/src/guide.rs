@@ -104,7 +104,9 @@
 //! a crate of its own that depends on a newer `rand` than phasekit and uses
 //! only the public API; its `impl StateDistribution` is 76 lines, the whole
 //! plug-in 194 (both as `cargo fmt` lays them out), and its tests run it through Baum-Welch, mixture EM, the
-//! online filter and the generic properties of `tests/every_emission.rs`.
+//! online filter, the generic properties of `tests/every_emission.rs`, the
+//! TSC-HMM and its union (`phasekit_tsc::TscHmm::fit_with_regression`) and
+//! GMR prediction, batch and online (`phasekit_gmr::HmmRegression`).
 //!
 //! ## The full trait
 //!

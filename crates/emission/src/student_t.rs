@@ -686,6 +686,10 @@ pub struct StudentTSplit {
 
 impl StudentTSplit {
     fn delta(&mut self, input: &[f64]) -> f64 {
+        if self.input.is_empty() {
+            // No input: the outputs' marginal (see `Conditional::conditional`).
+            return 0.0;
+        }
         for (k, v) in input.iter().enumerate() {
             self.diff[k] = v - self.mu_in[k];
         }
@@ -733,14 +737,20 @@ impl StateConditional for StudentT {
         crate::capability::check_split(input, output, d)?;
         let s = DMatrix::from_row_slice(d, d, &self.scale);
         let (r, c) = regression_of(&s, input, output)?;
-        let marg = self.marginal_on(input)?;
+        // No input: the outputs' marginal, whose input density is 1.
+        let (whiten_in, log_norm_in) = if input.is_empty() {
+            (Vec::new(), 0.0)
+        } else {
+            let marg = self.marginal_on(input)?;
+            (marg.whiten, marg.log_norm)
+        };
         Ok(StudentTSplit {
             input: input.to_vec(),
             nu: self.dof,
             mu_in: input.iter().map(|&k| self.mean[k]).collect(),
             mu_out: output.iter().map(|&k| self.mean[k]).collect(),
-            whiten_in: marg.whiten.clone(),
-            log_norm_in: marg.log_norm,
+            whiten_in,
+            log_norm_in,
             regression: r,
             conditional: c,
             diff: vec![0.0; input.len()],

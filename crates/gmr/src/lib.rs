@@ -1,7 +1,10 @@
 //! Gaussian mixture regression (GMR): predict output dimensions (the robot)
-//! from input dimensions (the human) under a joint Gaussian model.
+//! from input dimensions (the human) under a joint model whose emission has
+//! conditionals (`phasekit_emission::Conditional`: Gaussian, Student-t,
+//! mixtures of either, a plug-in's).
 //!
-//! * [`Conditional`]: `p(x_o | x_i) = N(μ_o + Σ_oi Σ_ii⁻¹ (x_i − μ_i), Σ_oo − Σ_oi Σ_ii⁻¹ Σ_io)`,
+//! * [`Conditional`] (the reference for Gaussian states; the regression uses
+//!   the emission's own conditional, equal to it to the last bit): `p(x_o | x_i) = N(μ_o + Σ_oi Σ_ii⁻¹ (x_i − μ_i), Σ_oo − Σ_oi Σ_ii⁻¹ Σ_io)`,
 //!   precomputed once per state by Cholesky solves (the seed paper prints the
 //!   regression as `μ¹ + Σ²¹(Σ¹²)⁻¹(μ¹ − o¹)`, a typo; this is the correct conditional);
 //! * [`GmmRegression`]: static GMR weighted by the responsibilities of the input marginal;
@@ -69,5 +72,5 @@ pub mod regression;
 pub use conditional::{check_io, Conditional};
 pub use error::{GmrError, Result};
 pub use regression::{
-    FrameEvidence, GmmRegression, HmmRegression, OnlineRegression, Prediction, Regression,
+    FrameEvidence, GmmRegression, HmmRegression, Mixer, OnlineRegression, Prediction, Regression,
 };

@@ -30,13 +30,14 @@
 //! nothing observed, `−inf` for a rejected one. A caller compares it with what
 //! the training data gave to tell input unlike the training demonstrations.
 
-use crate::conditional::{check_io, Conditional};
+use crate::conditional::check_io;
+use crate::conditional::Conditional as GaussianConditional;
 use crate::error::Result;
-use nalgebra::DMatrix;
-use phasekit_emission::{Emission, EmissionError, Frames, Gaussian, Marginal};
+use phasekit_emission::{
+    Conditional, ConditionalSplit, Emission, EmissionError, Frames, Gaussian, Marginal,
+};
 use phasekit_gmm::Gmm;
 use phasekit_hmm::{ForwardFilter, Hmm, HmmError};
-use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
 
 /// Predicted outputs of a sequence.
@@ -80,62 +81,52 @@ impl FrameEvidence {
     };
 }
 
-/// The conditionals of every state of a joint Gaussian emission.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct Regression {
+/// The conditionals of every state of a joint emission `E` (any emission
+/// with [`Conditional`]: Gaussian, Student-t, mixtures of either, a
+/// plug-in's), for one `(input, output)` split.
+///
+/// Each state's conditional is the emission's own ([`Conditional::conditional`]):
+/// for Gaussian states `μ_o + Σ_oi Σ_ii⁻¹ (x_i − μ_i)` and `Σ_oo − Σ_oi Σ_ii⁻¹ Σ_io`;
+/// for Student-t states the same mean and `(ν + δ)/(ν + |I| − 2)` times that
+/// covariance (the conditional is a Student-t with `ν + |I|` degrees of
+/// freedom; `δ` the input's Mahalanobis distance); for a mixture per state the
+/// moment-matched mixture of its components' conditionals.
+#[derive(Debug, Clone)]
+pub struct Regression<E: Conditional = Gaussian> {
     input: Vec<usize>,
     output: Vec<usize>,
-    conditionals: Vec<Conditional>,
-    /// Per state, the joint mean and covariance restricted to `input ++ output`
-    /// (inputs first), from which the conditionals on a subset of the inputs
-    /// are built when some inputs are missing.
-    joint: Vec<(Vec<f64>, DMatrix<f64>)>,
+    /// The joint emission, from which the conditionals on a subset of the
+    /// inputs are built when some inputs are missing.
+    joint: E,
+    /// The conditionals on every input.
+    split: E::Split,
 }
 
-impl Regression {
+impl<E: Conditional> Regression<E> {
     /// Conditions every state of `joint` on `input`, predicting `output`.
-    pub fn new(joint: &Gaussian, input: &[usize], output: &[usize]) -> Result<Self> {
+    pub fn new(joint: &E, input: &[usize], output: &[usize]) -> Result<Self> {
         check_io(input, output, joint.dim())?;
-        let conditionals = (0..joint.n_states())
-            .map(|k| Conditional::new(joint.mean(k), &joint.covariance(k), input, output, k))
-            .collect::<Result<Vec<_>>>()?;
-        let io: Vec<usize> = input.iter().chain(output).copied().collect();
-        let sub = joint.marginal(&io)?;
+        let split = joint.conditional(input, output)?;
         Ok(Regression {
             input: input.to_vec(),
             output: output.to_vec(),
-            conditionals,
-            joint: (0..sub.n_states())
-                .map(|k| (sub.mean(k).to_vec(), sub.covariance(k)))
-                .collect(),
+            joint: joint.clone(),
+            split,
         })
     }
 
     /// The conditionals on the observed (non-NaN) values of the input frame
-    /// `x_in` only; the outputs' marginals when no input is observed.
-    fn for_observed(&self, x_in: &[f64]) -> Result<Regression> {
-        let n_in = self.input.len();
-        let observed: Vec<usize> = (0..n_in).filter(|&k| !x_in[k].is_nan()).collect();
-        let output: Vec<usize> = (n_in..n_in + self.output.len()).collect();
-        let conditionals = self
-            .joint
+    /// `x_in` only: the emission's conditional on that subset of the input
+    /// dims, the outputs' marginals when no input is observed.
+    fn for_observed(&self, x_in: &[f64]) -> Result<E::Split> {
+        let observed: Vec<usize> = self
+            .input
             .iter()
-            .enumerate()
-            .map(|(k, (mean, cov))| {
-                if observed.is_empty() {
-                    Conditional::unconditional(mean, cov, &output)
-                } else {
-                    Conditional::new(mean, cov, &observed, &output, k)
-                }
-            })
-            .collect::<Result<Vec<_>>>()?;
-        Ok(Regression {
-            input: observed.iter().map(|&k| self.input[k]).collect(),
-            output: self.output.clone(),
-            conditionals,
-            // Only ever evaluated on complete (observed) inputs: no joint needed.
-            joint: Vec::new(),
-        })
+            .zip(x_in)
+            .filter(|(_, v)| !v.is_nan())
+            .map(|(&k, _)| k)
+            .collect();
+        Ok(self.joint.conditional(&observed, &self.output)?)
     }
 
     /// Input dims of the joint model.
@@ -148,14 +139,14 @@ impl Regression {
         &self.output
     }
 
-    /// The per-state conditionals.
-    pub fn conditionals(&self) -> &[Conditional] {
-        &self.conditionals
+    /// The joint emission the conditionals come from.
+    pub fn joint(&self) -> &E {
+        &self.joint
     }
 
     /// Number of states `K`.
     pub fn n_states(&self) -> usize {
-        self.conditionals.len()
+        self.split.n_states()
     }
 
     /// Number of outputs `O`.
@@ -165,12 +156,13 @@ impl Regression {
 
     /// Mixes the conditionals at input `x_in` (length `I`) with weights `h` (length `K`)
     /// into `mean` (length `O`) and, if given, `cov` (`O × O`). `scratch` must hold
-    /// `K × O` values. States with zero weight are skipped. No allocation.
+    /// `K × O` values. States with zero weight are skipped.
     ///
     /// A buffer of the wrong length is an error and nothing is written.
-    /// Missing inputs (NaN) are conditioned out (see the module documentation);
-    /// that builds the conditionals of the pattern on every call, which the
-    /// batch and online predictors avoid by caching them.
+    /// Missing inputs (NaN) are conditioned out (see the module documentation).
+    /// This convenience call copies the conditionals (and builds those of a
+    /// missing pattern) on every call; a loop over frames uses a [`Mixer`],
+    /// which does neither.
     #[inline]
     pub fn mix_into(
         &self,
@@ -180,7 +172,21 @@ impl Regression {
         cov: Option<&mut [f64]>,
         scratch: &mut [f64],
     ) -> Result<()> {
-        PatternRegressions::default().mix(self, x_in, h, mean, cov, scratch)
+        self.mixer().mix(self, x_in, h, mean, cov, scratch)
+    }
+
+    /// A mixer for this regression: mixes frame after frame without
+    /// allocating (a missing pattern's conditionals are built once, when the
+    /// pattern is first seen).
+    pub fn mixer(&self) -> Mixer<E> {
+        let (k, o) = (self.n_states(), self.n_out());
+        Mixer {
+            full: self.split.clone(),
+            map: HashMap::new(),
+            key: Vec::new(),
+            observed: Vec::new(),
+            covariances: vec![0.0; k * o * o],
+        }
     }
 
     fn check_buffers(
@@ -202,48 +208,6 @@ impl Regression {
         Ok(())
     }
 
-    /// [`Regression::mix_into`] on buffers already checked, complete input.
-    #[inline]
-    fn mix_unchecked(
-        &self,
-        x_in: &[f64],
-        h: &[f64],
-        mean: &mut [f64],
-        cov: Option<&mut [f64]>,
-        scratch: &mut [f64],
-    ) {
-        let o = self.n_out();
-        mean.fill(0.0);
-        for ((c, hk), mk) in self
-            .conditionals
-            .iter()
-            .zip(h)
-            .zip(scratch.chunks_exact_mut(o))
-        {
-            if *hk == 0.0 {
-                continue;
-            }
-            c.mean_unchecked(x_in, mk);
-            for (m, v) in mean.iter_mut().zip(mk.iter()) {
-                *m += hk * v;
-            }
-        }
-        if let Some(cov) = cov {
-            cov.fill(0.0);
-            for ((c, hk), mk) in self.conditionals.iter().zip(h).zip(scratch.chunks_exact(o)) {
-                if *hk == 0.0 {
-                    continue;
-                }
-                for r in 0..o {
-                    let dr = mk[r] - mean[r];
-                    for q in 0..o {
-                        cov[r * o + q] += hk * (c.covariance()[r * o + q] + dr * (mk[q] - mean[q]));
-                    }
-                }
-            }
-        }
-    }
-
     /// Mixes over a whole sequence with per-frame weights (`T × K`); the
     /// evidence is passed through.
     fn mix_sequence(
@@ -258,10 +222,10 @@ impl Regression {
         let mut mean = vec![0.0; t * o];
         let mut cov = with_covariance.then(|| vec![0.0; t * o * o]);
         let mut scratch = vec![0.0; k * o];
-        let mut patterns = PatternRegressions::default();
+        let mut mixer = self.mixer();
         for (tt, x) in frames.iter().enumerate() {
             let c = cov.as_mut().map(|c| &mut c[tt * o * o..(tt + 1) * o * o]);
-            patterns.mix(
+            mixer.mix(
                 self,
                 x,
                 &weights[tt * k..(tt + 1) * k],
@@ -281,25 +245,51 @@ impl Regression {
     }
 }
 
-/// Conditionals on the observed inputs, cached by missing pattern, and a
-/// buffer for the observed values: what [`Regression::mix_into`] would build
-/// on every call for a frame with missing inputs.
-#[derive(Debug, Clone, Default)]
-struct PatternRegressions {
-    map: HashMap<Vec<bool>, Regression>,
+impl Regression<Gaussian> {
+    /// The per-state conditionals of a Gaussian joint model, as the
+    /// reference [`GaussianConditional`] computes them (the regression itself uses
+    /// the emission's [`phasekit_emission::GaussianSplit`], equal to these to
+    /// the last bit; `gmr/tests/generic.rs` holds them to it).
+    pub fn conditionals(&self) -> Vec<GaussianConditional> {
+        (0..self.joint.n_states())
+            .map(|k| {
+                GaussianConditional::new(
+                    self.joint.mean(k),
+                    &self.joint.covariance(k),
+                    &self.input,
+                    &self.output,
+                    k,
+                )
+                .expect("conditioned once already by Regression::new")
+            })
+            .collect()
+    }
+}
+
+/// Mixes the conditionals of a [`Regression`] frame after frame: its own copy
+/// of the conditionals (evaluating them needs scratch space), those on the
+/// observed inputs cached by missing pattern, and buffers — no allocation per
+/// frame once a pattern has been seen.
+#[derive(Debug, Clone)]
+pub struct Mixer<E: Conditional = Gaussian> {
+    full: E::Split,
+    map: HashMap<Vec<bool>, E::Split>,
     key: Vec<bool>,
     observed: Vec<f64>,
+    /// Per state, the conditional covariance at the current input, `K × O × O`.
+    covariances: Vec<f64>,
 }
 
 /// Patterns held before the cache is emptied (bounds its memory).
 const PATTERN_CAPACITY: usize = 1024;
 
-impl PatternRegressions {
-    /// [`Regression::mix_into`] with the pattern's conditionals cached.
+impl<E: Conditional> Mixer<E> {
+    /// [`Regression::mix_into`] with this mixer's conditionals (`base` must be
+    /// the regression the mixer was made by).
     #[inline]
-    fn mix(
+    pub fn mix(
         &mut self,
-        base: &Regression,
+        base: &Regression<E>,
         x_in: &[f64],
         h: &[f64],
         mean: &mut [f64],
@@ -308,8 +298,15 @@ impl PatternRegressions {
     ) -> Result<()> {
         base.check_buffers(x_in, h, mean, cov.as_deref(), scratch)?;
         if !x_in.iter().any(|v| v.is_nan()) {
-            base.mix_unchecked(x_in, h, mean, cov, scratch);
-            return Ok(());
+            return mix_unchecked(
+                &mut self.full,
+                x_in,
+                h,
+                mean,
+                cov,
+                scratch,
+                &mut self.covariances,
+            );
         }
         self.key.clear();
         self.key.extend(x_in.iter().map(|v| v.is_nan()));
@@ -323,9 +320,71 @@ impl PatternRegressions {
         self.observed.clear();
         self.observed
             .extend(x_in.iter().copied().filter(|v| !v.is_nan()));
-        self.map[self.key.as_slice()].mix_unchecked(&self.observed, h, mean, cov, scratch);
-        Ok(())
+        let split = self
+            .map
+            .get_mut(self.key.as_slice())
+            .expect("inserted above");
+        mix_unchecked(
+            split,
+            &self.observed,
+            h,
+            mean,
+            cov,
+            scratch,
+            &mut self.covariances,
+        )
     }
+}
+
+/// Mixes the conditionals `split` at the complete input `x_in` with weights
+/// `h` into `mean` and `cov` (buffers checked by the caller): the mean
+/// `m = Σ_k h_k m_k(x)` and the moment-matched covariance
+/// `Σ_k h_k (C_k(x) + (m_k − m)(m_k − m)ᵀ)`.
+#[inline]
+fn mix_unchecked<S: ConditionalSplit>(
+    split: &mut S,
+    x_in: &[f64],
+    h: &[f64],
+    mean: &mut [f64],
+    cov: Option<&mut [f64]>,
+    scratch: &mut [f64],
+    covariances: &mut [f64],
+) -> Result<()> {
+    let o = mean.len();
+    mean.fill(0.0);
+    for (k, ((hk, mk), ck)) in h
+        .iter()
+        .zip(scratch.chunks_exact_mut(o))
+        .zip(covariances.chunks_exact_mut(o * o))
+        .enumerate()
+    {
+        if *hk == 0.0 {
+            continue;
+        }
+        split.predict(k, x_in, mk, ck)?;
+        for (m, v) in mean.iter_mut().zip(mk.iter()) {
+            *m += hk * v;
+        }
+    }
+    if let Some(cov) = cov {
+        cov.fill(0.0);
+        for ((hk, mk), ck) in h
+            .iter()
+            .zip(scratch.chunks_exact(o))
+            .zip(covariances.chunks_exact(o * o))
+        {
+            if *hk == 0.0 {
+                continue;
+            }
+            for r in 0..o {
+                let dr = mk[r] - mean[r];
+                for q in 0..o {
+                    cov[r * o + q] += hk * (ck[r * o + q] + dr * (mk[q] - mean[q]));
+                }
+            }
+        }
+    }
+    Ok(())
 }
 
 /// Errors unless a buffer has length `expected`.
@@ -345,14 +404,14 @@ fn check_len(context: &'static str, expected: usize, found: usize) -> Result<()>
 /// Static GMR: weights are the responsibilities of the input marginal of a GMM,
 /// `h_k(x_i) = π_k N(x_i; μ_k^i, Σ_k^ii) / Σ_j π_j N(x_i; μ_j^i, Σ_j^ii)`.
 #[derive(Debug, Clone)]
-pub struct GmmRegression {
-    regression: Regression,
-    input_model: Gmm,
+pub struct GmmRegression<E: Conditional + Marginal = Gaussian> {
+    regression: Regression<E>,
+    input_model: Gmm<E>,
 }
 
-impl GmmRegression {
+impl<E: Conditional + Marginal> GmmRegression<E> {
     /// Regression of `output` on `input` under the joint mixture `gmm`.
-    pub fn new(gmm: &Gmm, input: &[usize], output: &[usize]) -> Result<Self> {
+    pub fn new(gmm: &Gmm<E>, input: &[usize], output: &[usize]) -> Result<Self> {
         let regression = Regression::new(gmm.components(), input, output)?;
         Ok(GmmRegression {
             regression,
@@ -361,12 +420,12 @@ impl GmmRegression {
     }
 
     /// The conditionals.
-    pub fn regression(&self) -> &Regression {
+    pub fn regression(&self) -> &Regression<E> {
         &self.regression
     }
 
     /// The mixture on the input dims, whose responsibilities weigh the conditionals.
-    pub fn input_model(&self) -> &Gmm {
+    pub fn input_model(&self) -> &Gmm<E> {
         &self.input_model
     }
 
@@ -489,14 +548,14 @@ fn without_frames(frames: Frames<'_>, drop: &[usize]) -> Vec<f64> {
 /// HMM-based GMR: weights are the forward variable `h_t` of the input-marginal HMM,
 /// i.e. the belief from the input (the human's) frames `x^i_{1:t}` alone.
 #[derive(Debug, Clone)]
-pub struct HmmRegression {
-    regression: Regression,
-    input_model: Hmm<Gaussian>,
+pub struct HmmRegression<E: Conditional + Marginal = Gaussian> {
+    regression: Regression<E>,
+    input_model: Hmm<E>,
 }
 
-impl HmmRegression {
+impl<E: Conditional + Marginal> HmmRegression<E> {
     /// Regression of `output` on `input` under the joint HMM `hmm`.
-    pub fn new(hmm: &Hmm<Gaussian>, input: &[usize], output: &[usize]) -> Result<Self> {
+    pub fn new(hmm: &Hmm<E>, input: &[usize], output: &[usize]) -> Result<Self> {
         let regression = Regression::new(hmm.emission(), input, output)?;
         Ok(HmmRegression {
             regression,
@@ -505,12 +564,12 @@ impl HmmRegression {
     }
 
     /// The conditionals.
-    pub fn regression(&self) -> &Regression {
+    pub fn regression(&self) -> &Regression<E> {
         &self.regression
     }
 
     /// The HMM on the input dims.
-    pub fn input_model(&self) -> &Hmm<Gaussian> {
+    pub fn input_model(&self) -> &Hmm<E> {
         &self.input_model
     }
 
@@ -561,13 +620,13 @@ impl HmmRegression {
     }
 
     /// A frame-by-frame predictor for a control loop.
-    pub fn online(&self) -> OnlineRegression {
+    pub fn online(&self) -> OnlineRegression<E> {
         let (k, o) = (self.regression.n_states(), self.regression.n_out());
         OnlineRegression {
             filter: self.input_model.filter(),
             nothing: vec![f64::NAN; self.regression.input().len()],
+            mixer: self.regression.mixer(),
             regression: self.regression.clone(),
-            patterns: PatternRegressions::default(),
             mean: vec![0.0; o],
             covariance: vec![0.0; o * o],
             scratch: vec![0.0; k * o],
@@ -581,8 +640,8 @@ impl HmmRegression {
 /// missing), so that the belief takes its transition step only. The log
 /// predictive density is the increment of the filter's running
 /// log-likelihood (exact to the rounding of that sum).
-fn filter_step(
-    filter: &mut ForwardFilter<Gaussian>,
+fn filter_step<E: Marginal>(
+    filter: &mut ForwardFilter<E>,
     x: &[f64],
     nothing: &[f64],
 ) -> Result<FrameEvidence> {
@@ -613,10 +672,10 @@ fn filter_step(
 /// (taken as not observed, see the module documentation) and reported by
 /// [`OnlineRegression::evidence`].
 #[derive(Debug, Clone)]
-pub struct OnlineRegression {
-    filter: ForwardFilter<Gaussian>,
-    regression: Regression,
-    patterns: PatternRegressions,
+pub struct OnlineRegression<E: Conditional + Marginal = Gaussian> {
+    filter: ForwardFilter<E>,
+    regression: Regression<E>,
+    mixer: Mixer<E>,
     /// An input frame with nothing observed.
     nothing: Vec<f64>,
     mean: Vec<f64>,
@@ -625,7 +684,7 @@ pub struct OnlineRegression {
     evidence: FrameEvidence,
 }
 
-impl OnlineRegression {
+impl<E: Conditional + Marginal> OnlineRegression<E> {
     /// Takes input frame `x^i_t`, updates the belief and returns the predicted output mean.
     pub fn step(&mut self, input_frame: &[f64]) -> Result<&[f64]> {
         self.step_inner(input_frame, false)
@@ -644,7 +703,7 @@ impl OnlineRegression {
         } else {
             input_frame
         };
-        self.patterns.mix(
+        self.mixer.mix(
             &self.regression,
             x,
             self.filter.belief(),

@@ -1,9 +1,10 @@
 //! The settings of one HMM fit (the paper-compatible protocol by default) and
 //! the automatic choice of its number of states.
 
+use crate::emission_choice::{AnyEmission, EmissionKind};
 use crate::error::{Result, TscError};
 use crate::select::{check_range, fit_gmeans_states, gmeans_count, Selector};
-use phasekit_emission::{CovarianceType, Gaussian, Regularisation, SequenceSet, Shape};
+use phasekit_emission::{CovarianceType, Emission, Regularisation, SequenceSet};
 use phasekit_hmm::{
     max_supported_states, select_states_bic, BaumWelch, Convergence, Hmm, HmmError, HmmFitReport,
     HmmInit, StateLimit,
@@ -71,8 +72,8 @@ impl AutoStates {
     }
 }
 
-/// Settings of one HMM fit with full (or another structure of) Gaussian
-/// emissions; [`HmmSettings::paper`] is the paper-compatible protocol.
+/// Settings of one HMM fit with full-covariance Gaussian emissions or another
+/// [`EmissionKind`]; [`HmmSettings::paper`] is the paper-compatible protocol.
 ///
 /// Validated once, by [`HmmSettingsBuilder::build`] (and on deserialisation).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -87,6 +88,10 @@ pub struct HmmSettings {
     covariance: CovarianceType,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     auto_states: Option<AutoStates>,
+    /// Written only when not the default (files stay as they were for full
+    /// Gaussians); a file without it has Gaussian states of `covariance`.
+    #[serde(default, skip_serializing_if = "EmissionKind::is_default")]
+    emission: EmissionKind,
 }
 
 /// The serialised form of [`HmmSettings`], before validation (the field names
@@ -102,6 +107,8 @@ struct HmmSettingsRaw {
     covariance: CovarianceType,
     #[serde(default)]
     auto_states: Option<AutoStates>,
+    #[serde(default)]
+    emission: Option<EmissionKind>,
 }
 
 impl TryFrom<HmmSettingsRaw> for HmmSettings {
@@ -116,6 +123,7 @@ impl TryFrom<HmmSettingsRaw> for HmmSettings {
             seed: r.seed,
             covariance: r.covariance,
             auto_states: r.auto_states,
+            emission: r.emission.unwrap_or(EmissionKind::Gaussian(r.covariance)),
         })
         .build()
     }
@@ -133,6 +141,7 @@ impl Default for HmmSettings {
             seed: 0,
             covariance: CovarianceType::Full,
             auto_states: None,
+            emission: EmissionKind::Gaussian(CovarianceType::Full),
         }
     }
 }
@@ -179,9 +188,18 @@ impl HmmSettingsBuilder {
         self.0.seed = seed;
         self
     }
-    /// Covariance structure of the emissions.
+    /// Covariance structure of Gaussian emissions (the emission becomes
+    /// `EmissionKind::Gaussian(covariance)`).
     pub fn covariance(mut self, covariance: CovarianceType) -> Self {
         self.0.covariance = covariance;
+        self.0.emission = EmissionKind::Gaussian(covariance);
+        self
+    }
+    /// The emission of every state (a Gaussian choice also sets the
+    /// covariance structure; the others have full covariances or scales).
+    pub fn emission(mut self, emission: EmissionKind) -> Self {
+        self.0.emission = emission;
+        self.0.covariance = emission.covariance().unwrap_or(CovarianceType::Full);
         self
     }
     /// Validates the settings, naming the first bad one.
@@ -202,6 +220,17 @@ impl HmmSettingsBuilder {
         }
         if s.restarts == 0 {
             return bad("restarts", "at least one run is needed".into());
+        }
+        if let Some(c) = s.emission.covariance() {
+            if c != s.covariance {
+                return bad(
+                    "emission",
+                    format!(
+                        "the emission is {} but the covariance structure {:?}",
+                        s.emission, s.covariance
+                    ),
+                );
+            }
         }
         Ok(s)
     }
@@ -294,9 +323,14 @@ impl HmmSettings {
     pub fn seed(&self) -> u64 {
         self.seed
     }
-    /// Covariance structure of the emissions.
+    /// Covariance structure of the emissions (of Gaussian emissions; full
+    /// for the others).
     pub fn covariance(&self) -> CovarianceType {
         self.covariance
+    }
+    /// The emission of every state.
+    pub fn emission(&self) -> EmissionKind {
+        self.emission
     }
     /// The automatic choice of the number of states, if any.
     pub fn auto_states(&self) -> Option<AutoStates> {
@@ -323,14 +357,26 @@ impl HmmSettings {
     }
 
     /// The emission structure with `n_states` states of dimension `dim`.
-    fn template(&self, n_states: usize, dim: usize) -> phasekit_emission::Result<Gaussian> {
-        Gaussian::standard(self.covariance, Shape { n_states, dim })
+    pub fn template(&self, n_states: usize, dim: usize) -> phasekit_emission::Result<AnyEmission> {
+        self.emission.template(n_states, dim)
     }
 
     /// Fits an HMM with these settings to `data` (choosing the number of
     /// states first when [`HmmSettings::auto_states`] is set).
-    pub fn fit(&self, data: &SequenceSet) -> Result<(Hmm<Gaussian>, HmmFitReport)> {
+    pub fn fit(&self, data: &SequenceSet) -> Result<(Hmm<AnyEmission>, HmmFitReport)> {
         let (hmm, report, _) = self.fit_selected(data)?;
+        Ok((hmm, report))
+    }
+
+    /// [`HmmSettings::fit`] for any emission: `template(S, D)` makes the
+    /// emission of `S` states of dimension `D` every fit starts from (the
+    /// settings' own emission choice is then not used).
+    pub fn fit_with<E: Emission>(
+        &self,
+        data: &SequenceSet,
+        template: &impl Fn(usize, usize) -> phasekit_emission::Result<E>,
+    ) -> Result<(Hmm<E>, HmmFitReport)> {
+        let (hmm, report, _) = self.fit_selected_with(data, template)?;
         Ok((hmm, report))
     }
 
@@ -345,10 +391,19 @@ impl HmmSettings {
     pub fn fit_selected(
         &self,
         data: &SequenceSet,
-    ) -> Result<(Hmm<Gaussian>, HmmFitReport, Option<AutoStatesReport>)> {
+    ) -> Result<(Hmm<AnyEmission>, HmmFitReport, Option<AutoStatesReport>)> {
+        self.fit_selected_with(data, &|n, d| self.template(n, d))
+    }
+
+    /// [`HmmSettings::fit_selected`] for any emission (see [`HmmSettings::fit_with`]).
+    pub fn fit_selected_with<E: Emission>(
+        &self,
+        data: &SequenceSet,
+        template: &impl Fn(usize, usize) -> phasekit_emission::Result<E>,
+    ) -> Result<(Hmm<E>, HmmFitReport, Option<AutoStatesReport>)> {
         let bw = self.baum_welch()?;
         let dim = data.dim();
-        let template = |k| self.template(k, dim);
+        let template = |k| template(k, dim);
         let Some(auto) = self.auto_states else {
             let fitted = bw.fit(&template(self.states)?, data)?;
             return Ok((fitted.model, fitted.report, None));

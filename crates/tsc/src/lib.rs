@@ -73,6 +73,7 @@
 
 pub mod cross_validation;
 pub mod detect;
+pub mod emission_choice;
 pub mod error;
 pub mod hmm_settings;
 pub mod krishnan;
@@ -88,6 +89,7 @@ pub mod synthetic;
 pub mod tsc_hmm;
 
 pub use cross_validation::cross_validate;
+pub use emission_choice::{AnyEmission, AnySplit, AnyStats, EmissionKind, StateMoments};
 pub use error::{NoTransitionCause, ParameterNamer, Result, TscError};
 pub use hmm_settings::{AutoStates, AutoStatesReport, HmmSettings, HmmSettingsBuilder};
 pub use krishnan::{

@@ -2,13 +2,14 @@
 //! demonstration.
 
 use crate::detect::{dilate, label_changes, runs, Labeller, ViterbiLabeller};
+use crate::emission_choice::AnyEmission;
 use crate::error::{Result, TscError};
 use crate::krishnan::KrishnanTsc;
 use crate::predictor::Predictor;
 use crate::roles::Roles;
 use crate::segmentation::Segmentation;
 use crate::tsc_hmm::{disagreement_flags, TscHmm};
-use phasekit_emission::{Frames, Gaussian, SequenceSet};
+use phasekit_emission::{Frames, SequenceSet};
 use phasekit_gmm::Gmm;
 use phasekit_gmr::{GmmRegression, HmmRegression};
 use phasekit_hmm::Hmm;
@@ -23,8 +24,8 @@ use serde::{Deserialize, Serialize};
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(try_from = "ModelRaw", into = "ModelRaw")]
 pub enum Model {
-    /// An HMM on joint frames.
-    Hmm(Hmm<Gaussian>),
+    /// An HMM on joint frames (of any emission the command can choose).
+    Hmm(Hmm<AnyEmission>),
     /// A TSC-HMM.
     TscHmm {
         /// The fitted model.
@@ -47,7 +48,7 @@ pub enum Model {
 #[derive(Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "kebab-case")]
 enum ModelRaw {
-    Hmm(Hmm<Gaussian>),
+    Hmm(Hmm<AnyEmission>),
     TscHmm { model: TscHmm, window: usize },
     Gmm(Gmm),
     GmmTsc { tsc: KrishnanTsc, mixture: Gmm },
@@ -128,7 +129,7 @@ impl Model {
     pub fn predictor(&self, roles: &Roles) -> Result<Predictor> {
         roles.check(self.dim())?;
         self.validate()?;
-        let hmm = |h: &Hmm<Gaussian>| HmmRegression::new(h, roles.human(), roles.robot());
+        let hmm = |h: &Hmm<AnyEmission>| HmmRegression::new(h, roles.human(), roles.robot());
         Ok(match self {
             Model::Hmm(h) => Predictor::hmm(hmm(h)?),
             Model::TscHmm { model, .. } => match model.union() {

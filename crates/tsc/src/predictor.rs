@@ -2,10 +2,14 @@
 //! ([`Predictor`]) and frame by frame for a control loop ([`OnlinePredictor`]).
 
 use crate::detect::select;
+use crate::emission_choice::AnyEmission;
 use crate::error::Result;
 use crate::roles::Roles;
 use phasekit_emission::Frames;
-use phasekit_gmr::{FrameEvidence, GmmRegression, HmmRegression, OnlineRegression, Prediction};
+use phasekit_gmr::{FrameEvidence, GmmRegression, Prediction};
+
+type HmmRegression = phasekit_gmr::HmmRegression<AnyEmission>;
+type OnlineRegression = phasekit_gmr::OnlineRegression<AnyEmission>;
 
 /// Predicts the robot's dims from the human's, over whole sequences, causally
 /// (made by `Model::predictor`).

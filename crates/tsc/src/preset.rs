@@ -13,13 +13,13 @@
 //! [`Method::preset`] turns a preset and [`PresetOptions`] into a [`Method`]
 //! whose every setting is checked.
 
+use crate::emission_choice::EmissionKind;
 use crate::error::{Result, TscError};
 use crate::hmm_settings::{AutoStates, HmmSettings};
 use crate::krishnan::{KrishnanSettings, TimeClustering};
 use crate::method::{CrossValidation, GmmSettings, Method};
 use crate::select::Selector;
 use crate::tsc_hmm::{Composition, Detector, TscSettings};
-use phasekit_emission::CovarianceType;
 use serde::{Deserialize, Serialize};
 use std::fmt;
 use std::str::FromStr;
@@ -138,6 +138,8 @@ pub struct PresetOptions {
     tol: f64,
     restarts: usize,
     seed: u64,
+    #[serde(default, skip_serializing_if = "EmissionKind::is_default")]
+    emission: EmissionKind,
 }
 
 /// The serialised form of [`PresetOptions`], before validation.
@@ -161,6 +163,8 @@ struct PresetOptionsRaw {
     tol: f64,
     restarts: usize,
     seed: u64,
+    #[serde(default)]
+    emission: EmissionKind,
 }
 
 fn default_max_states() -> usize {
@@ -188,6 +192,7 @@ impl TryFrom<PresetOptionsRaw> for PresetOptions {
             tol: r.tol,
             restarts: r.restarts,
             seed: r.seed,
+            emission: r.emission,
         })
         .build()
     }
@@ -212,6 +217,7 @@ impl Default for PresetOptions {
             tol: 1e-4,
             restarts: 1,
             seed: 0,
+            emission: EmissionKind::default(),
         }
     }
 }
@@ -291,6 +297,12 @@ impl PresetOptionsBuilder {
     /// Seed of every random choice.
     pub fn seed(mut self, seed: u64) -> Self {
         self.0.seed = seed;
+        self
+    }
+    /// The emission of every HMM state (the HMM presets; `gmm` and `gmm-tsc`
+    /// have full Gaussians only).
+    pub fn emission(mut self, emission: EmissionKind) -> Self {
+        self.0.emission = emission;
         self
     }
     /// Validates the options, naming the first bad one (the checks that depend
@@ -393,6 +405,10 @@ impl PresetOptions {
     pub fn seed(&self) -> u64 {
         self.seed
     }
+    /// The emission of every HMM state.
+    pub fn emission(&self) -> EmissionKind {
+        self.emission
+    }
 }
 
 impl Method {
@@ -407,6 +423,15 @@ impl Method {
                 ),
             });
         }
+        if !o.emission.is_default() && matches!(preset, Preset::Gmm | Preset::GmmTsc) {
+            return Err(TscError::InvalidSetting {
+                name: "emission",
+                reason: format!(
+                    "emission={} is offered for the HMM presets (hmm, the tsc-hmm presets, hmm-cv, tsc-hmm-cv), not `{preset}`, whose mixtures are full Gaussians",
+                    o.emission
+                ),
+            });
+        }
         let hmm_builder = HmmSettings::builder()
             .states(o.states)
             .reg(o.reg)
@@ -414,7 +439,7 @@ impl Method {
             .tol(o.tol)
             .restarts(o.restarts)
             .seed(o.seed)
-            .covariance(CovarianceType::Full);
+            .emission(o.emission);
         let hmm = if o.auto_states && preset != Preset::GmmTsc {
             hmm_builder.auto_states(AutoStates::new(AUTO_MIN_STATES, o.max_states, o.select)?)
         } else {

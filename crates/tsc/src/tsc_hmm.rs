@@ -12,10 +12,13 @@
 //! [`Composition`]s below are the candidates measured in the ablation.
 
 use crate::detect::{dilate, runs, select, worst_fraction, Disagreement, FilterLabeller};
+use crate::emission_choice::AnyEmission;
 use crate::error::{NoTransitionCause, Result, TscError};
 use crate::hmm_settings::{AutoStatesReport, HmmSettings};
 use crate::roles::Roles;
-use phasekit_emission::{Emission, Frames, Gaussian, Regularisation, SequenceSet};
+use phasekit_emission::{
+    ConcatStates, Conditional, Emission, Frames, Marginal, Regularisation, SequenceSet,
+};
 use phasekit_gmr::HmmRegression;
 use phasekit_hmm::{BaumWelch, Convergence, Hmm, HmmFitReport, Update};
 use serde::{Deserialize, Serialize};
@@ -230,8 +233,8 @@ pub type TransitionFlags = Vec<Vec<bool>>;
 /// `f_t = [argmax_i h_i(o¹²_{1:t}) ≠ argmax_i h_i(o¹_{1:t})]`, the paper's transition states.
 ///
 /// A [`Disagreement`] of two [`FilterLabeller`]s (joint, and human marginal).
-pub fn disagreement_flags(
-    hmm: &Hmm<Gaussian>,
+pub fn disagreement_flags<E: Marginal>(
+    hmm: &Hmm<E>,
     roles: &Roles,
     data: &SequenceSet,
 ) -> Result<TransitionFlags> {
@@ -245,8 +248,8 @@ pub fn disagreement_flags(
 
 /// Squared prediction error of the robot dims by HMM-GMR from the human dims,
 /// per frame, summed over the robot values that are observed.
-pub fn prediction_errors(
-    hmm: &Hmm<Gaussian>,
+pub fn prediction_errors<E: Marginal + Conditional>(
+    hmm: &Hmm<E>,
     roles: &Roles,
     data: &SequenceSet,
 ) -> Result<Vec<Vec<f64>>> {
@@ -335,27 +338,36 @@ pub fn transition_sequences(
 /// composition (with the union HMM for the union compositions).
 ///
 /// Its parts agree by construction ([`TscHmm::new`], and on deserialisation).
+///
+/// Generic over the emission `E` of `λ`, `λ_T` and the union: fitting needs
+/// a marginal (the human-only filter of the detector) and a state
+/// concatenation (the union), [`TscHmm::fit_with`]; predicting needs a
+/// conditional as well. The command and the model files use [`AnyEmission`].
 #[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(try_from = "TscHmmRaw")]
-pub struct TscHmm {
-    base: Hmm<Gaussian>,
-    transition: Hmm<Gaussian>,
-    union: Option<Hmm<Gaussian>>,
+#[serde(
+    try_from = "TscHmmRaw<E>",
+    bound = "E: Emission + Serialize + for<'a> Deserialize<'a>"
+)]
+pub struct TscHmm<E: Emission = AnyEmission> {
+    base: Hmm<E>,
+    transition: Hmm<E>,
+    union: Option<Hmm<E>>,
     composition: Composition,
 }
 
 /// The serialised form of [`TscHmm`], before validation.
 #[derive(Deserialize)]
-struct TscHmmRaw {
-    base: Hmm<Gaussian>,
-    transition: Hmm<Gaussian>,
-    union: Option<Hmm<Gaussian>>,
+#[serde(bound = "E: Emission + Serialize + for<'a> Deserialize<'a>")]
+struct TscHmmRaw<E: Emission> {
+    base: Hmm<E>,
+    transition: Hmm<E>,
+    union: Option<Hmm<E>>,
     composition: Composition,
 }
 
-impl TryFrom<TscHmmRaw> for TscHmm {
+impl<E: Emission> TryFrom<TscHmmRaw<E>> for TscHmm<E> {
     type Error = TscError;
-    fn try_from(r: TscHmmRaw) -> Result<Self> {
+    fn try_from(r: TscHmmRaw<E>) -> Result<Self> {
         TscHmm::new(r.base, r.transition, r.union, r.composition)
     }
 }
@@ -378,20 +390,13 @@ pub struct TscReport {
     pub selection: Option<AutoStatesReport>,
 }
 
-/// The union of two HMMs' states: emissions side by side, transitions block-diagonal
-/// with `ε` spread uniformly to the other block, start `(1 − ε) π_λ ⊕ ε/S_T`.
-pub fn union_of(a: &Hmm<Gaussian>, b: &Hmm<Gaussian>, epsilon: f64) -> Result<Hmm<Gaussian>> {
-    let (sa, sb, d) = (a.n_states(), b.n_states(), a.dim());
-    let (ea, eb) = (a.emission(), b.emission());
-    let mut means = ea.means().to_vec();
-    means.extend_from_slice(eb.means());
-    let mut covs = Vec::with_capacity((sa + sb) * d * d);
-    for g in [ea, eb] {
-        for k in 0..g.n_states() {
-            covs.extend(g.covariance(k).transpose().iter().copied());
-        }
-    }
-    let emission = Gaussian::full(d, means, covs)?;
+/// The union of two HMMs' states: emissions side by side
+/// ([`ConcatStates`]: states `0..S` are `a`'s, `S..S + S_T` are `b`'s),
+/// transitions block-diagonal with `ε` spread uniformly to the other block,
+/// start `(1 − ε) π_λ ⊕ ε/S_T`.
+pub fn union_of<E: ConcatStates>(a: &Hmm<E>, b: &Hmm<E>, epsilon: f64) -> Result<Hmm<E>> {
+    let (sa, sb) = (a.n_states(), b.n_states());
+    let emission = a.emission().concat_states(b.emission())?;
     let s = sa + sb;
     let mut trans = vec![0.0; s * s];
     for i in 0..s {
@@ -432,16 +437,16 @@ fn largest_variance(data: &SequenceSet) -> f64 {
         .fold(0.0, f64::max)
 }
 
-impl TscHmm {
+impl<E: Emission> TscHmm<E> {
     /// A TSC-HMM from its parts: `λ` and `λ_T` (and the union) have the same
     /// dimension; a union composition has its union HMM of `S + S_T` states,
     /// the gate none.
     pub fn new(
-        base: Hmm<Gaussian>,
-        transition: Hmm<Gaussian>,
-        union: Option<Hmm<Gaussian>>,
+        base: Hmm<E>,
+        transition: Hmm<E>,
+        union: Option<Hmm<E>>,
         composition: Composition,
-    ) -> Result<TscHmm> {
+    ) -> Result<TscHmm<E>> {
         let bad = |reason: String| {
             Err(TscError::InvalidModel {
                 model: "tsc-hmm model",
@@ -487,16 +492,16 @@ impl TscHmm {
     }
 
     /// The base HMM `λ` (joint frames).
-    pub fn base(&self) -> &Hmm<Gaussian> {
+    pub fn base(&self) -> &Hmm<E> {
         &self.base
     }
     /// The transition-state HMM `λ_T` (joint frames).
-    pub fn transition(&self) -> &Hmm<Gaussian> {
+    pub fn transition(&self) -> &Hmm<E> {
         &self.transition
     }
     /// The union HMM, for the union compositions (states `0..S` are `λ`'s,
     /// `S..S + S_T` `λ_T`'s).
-    pub fn union(&self) -> Option<&Hmm<Gaussian>> {
+    pub fn union(&self) -> Option<&Hmm<E>> {
         self.union.as_ref()
     }
     /// How the two predict together.
@@ -508,12 +513,60 @@ impl TscHmm {
     pub fn n_states(&self) -> usize {
         self.base.n_states() + self.transition.n_states()
     }
+}
 
-    /// Algorithm 1 and the chosen composition, on joint training sequences.
+/// The frames a detector scores by prediction error: a function of `λ`.
+type PredictionErrors<'a, E> = &'a dyn Fn(&Hmm<E>) -> Result<Vec<Vec<f64>>>;
+
+impl TscHmm<AnyEmission> {
+    /// Algorithm 1 and the chosen composition, on joint training sequences,
+    /// with the emission of `settings.base().emission()`.
     pub fn fit(
         data: &SequenceSet,
         roles: &Roles,
         settings: &TscSettings,
+    ) -> Result<(Self, TscReport)> {
+        TscHmm::fit_with_regression(data, roles, settings, |n, d| settings.base.template(n, d))
+    }
+}
+
+impl<E: Marginal + ConcatStates + Conditional> TscHmm<E> {
+    /// [`TscHmm::fit_with`] for an emission with conditionals: every
+    /// detector, including [`Detector::WorstPrediction`] (which predicts the
+    /// robot by HMM-GMR).
+    pub fn fit_with_regression(
+        data: &SequenceSet,
+        roles: &Roles,
+        settings: &TscSettings,
+        template: impl Fn(usize, usize) -> phasekit_emission::Result<E>,
+    ) -> Result<(Self, TscReport)> {
+        let errors = |base: &Hmm<E>| prediction_errors(base, roles, data);
+        TscHmm::fit_impl(data, roles, settings, template, Some(&errors))
+    }
+}
+
+impl<E: Marginal + ConcatStates> TscHmm<E> {
+    /// Algorithm 1 and the chosen composition for any emission with
+    /// marginals and state concatenation, `template(S, D)` making the
+    /// emission every fit starts from (the other settings from `settings`).
+    ///
+    /// [`Detector::WorstPrediction`] needs conditionals (it predicts the
+    /// robot): use [`TscHmm::fit_with_regression`]; here it is an error.
+    pub fn fit_with(
+        data: &SequenceSet,
+        roles: &Roles,
+        settings: &TscSettings,
+        template: impl Fn(usize, usize) -> phasekit_emission::Result<E>,
+    ) -> Result<(Self, TscReport)> {
+        TscHmm::fit_impl(data, roles, settings, template, None)
+    }
+
+    fn fit_impl(
+        data: &SequenceSet,
+        roles: &Roles,
+        settings: &TscSettings,
+        template: impl Fn(usize, usize) -> phasekit_emission::Result<E>,
+        errors: Option<PredictionErrors<'_, E>>,
     ) -> Result<(Self, TscReport)> {
         roles.check(data.dim())?;
         if let Some((k, shortest)) = data.iter().map(|s| s.len()).enumerate().min_by_key(|x| x.1) {
@@ -528,11 +581,17 @@ impl TscHmm {
                 });
             }
         }
-        let (base, base_report, selection) = settings.base.fit_selected(data)?;
-        let flags = match settings.detector {
-            Detector::Disagreement => disagreement_flags(&base, roles, data)?,
-            Detector::WorstPrediction { fraction } => {
-                worst_fraction(&prediction_errors(&base, roles, data)?, fraction)
+        let (base, base_report, selection) = settings.base.fit_selected_with(data, &template)?;
+        let flags = match (settings.detector, errors) {
+            (Detector::Disagreement, _) => disagreement_flags(&base, roles, data)?,
+            (Detector::WorstPrediction { fraction }, Some(errors)) => {
+                worst_fraction(&errors(&base)?, fraction)
+            }
+            (Detector::WorstPrediction { .. }, None) => {
+                return Err(TscError::InvalidSetting {
+                    name: "detector",
+                    reason: "the worst-prediction detector predicts the robot by regression, which needs an emission with conditionals (TscHmm::fit_with_regression)".into(),
+                })
             }
         };
         let flags: TransitionFlags = flags.iter().map(|f| dilate(f, settings.window)).collect();
@@ -559,14 +618,15 @@ impl TscHmm {
             .states(settings.tsc_states)
             .build()?;
         let (transition, transition_report) =
-            tsc.fit(&segments).map_err(|e| TscError::TransitionModel {
-                tsc_states: settings.tsc_states,
-                window: settings.window,
-                segments: segments.len(),
-                frames: segments.total_frames(),
-                shortest: segments.lengths().min().unwrap_or(0),
-                source: Box::new(e),
-            })?;
+            tsc.fit_with(&segments, &template)
+                .map_err(|e| TscError::TransitionModel {
+                    tsc_states: settings.tsc_states,
+                    window: settings.window,
+                    segments: segments.len(),
+                    frames: segments.total_frames(),
+                    shortest: segments.lengths().min().unwrap_or(0),
+                    source: Box::new(e),
+                })?;
         let (union, union_report) = match settings.composition {
             Composition::Gated => (None, None),
             Composition::Union | Composition::UnionFrozen => {

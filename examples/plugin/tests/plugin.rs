@@ -138,3 +138,78 @@ fn own_rand_lives_beside_phasekits() {
         .is_ok());
     let _ = Regularisation::none();
 }
+
+/// Three states whose first dim ("the human") cannot tell states 1 and 2
+/// apart; the second ("the robot") can.
+fn ambiguous_truth() -> Hmm<PerState<Laplace>> {
+    let states = vec![
+        Laplace::new(vec![-5.0, 0.0], vec![0.5, 0.5]).unwrap(),
+        Laplace::new(vec![5.0, 4.0], vec![0.5, 0.5]).unwrap(),
+        Laplace::new(vec![5.0, -4.0], vec![0.5, 0.5]).unwrap(),
+    ];
+    Hmm::new(
+        vec![1.0, 0.0, 0.0],
+        vec![0.9, 0.1, 0.0, 0.0, 0.9, 0.1, 0.1, 0.0, 0.9],
+        PerState::new(states).unwrap(),
+    )
+    .unwrap()
+}
+
+#[test]
+fn gmr_predicts_with_the_plugin_online_as_in_batch() {
+    let t = truth();
+    let gmr = phasekit_gmr::HmmRegression::new(&t, &[0], &[1]).unwrap();
+    let mut rng = Rng::seed_from_u64(4);
+    let (frames, _) = t.sample(80, &mut rng).unwrap();
+    let human: Vec<f64> = frames.chunks_exact(2).map(|f| f[0]).collect();
+    let batch = gmr.predict(Frames::new(&human, 1).unwrap(), true).unwrap();
+    let mut online = gmr.online();
+    for (k, x) in human.iter().enumerate() {
+        let m = online.step_with_covariance(&[*x]).unwrap()[0];
+        assert_eq!(m.to_bits(), batch.mean[k].to_bits(), "frame {k}");
+        // Independent dims: the prediction is the belief's mix of the robot locations.
+        let h = online.belief();
+        let want = h[0] * 0.0 + h[1] * 3.0;
+        assert!((m - want).abs() < 1e-12, "frame {k}: {m} vs {want}");
+    }
+}
+
+#[test]
+fn the_tsc_hmm_union_runs_on_the_plugin() {
+    let truth = ambiguous_truth();
+    let mut rng = Rng::seed_from_u64(9);
+    let seqs: Vec<Vec<f64>> = (0..8)
+        .map(|_| truth.sample(80, &mut rng).unwrap().0)
+        .collect();
+    let data = SequenceSet::new(&seqs, 2).unwrap();
+    let roles = phasekit_tsc::Roles::new(vec![0], vec![1]).unwrap();
+    let settings = phasekit_tsc::TscSettings::builder()
+        .base(phasekit_tsc::HmmSettings::paper(3).unwrap())
+        .tsc_states(2)
+        .window(1)
+        // The frames λ predicts worst (a detector that needs the plug-in's conditional).
+        .detector(phasekit_tsc::Detector::WorstPrediction { fraction: 0.2 })
+        .build()
+        .unwrap();
+    let template = |s, d| PerState::repeat(Laplace::standard(d)?, s);
+    let (m, report) =
+        phasekit_tsc::TscHmm::fit_with_regression(&data, &roles, &settings, template).unwrap();
+    assert!(report.segments >= 1);
+    let union = m.union().unwrap();
+    assert_eq!(union.n_states(), 5);
+    // The union's first states are λ's, the last λ_T's, each unchanged at the warm start.
+    let warm = phasekit_tsc::tsc_hmm::union_of(m.base(), m.transition(), 0.01).unwrap();
+    let x = Frames::new(&seqs[0][..2], 2).unwrap();
+    let (lb, lt, lw) = (
+        m.base().emission().log_density(x).unwrap(),
+        m.transition().emission().log_density(x).unwrap(),
+        warm.emission().log_density(x).unwrap(),
+    );
+    assert_eq!(&lw[..3], &lb[..]);
+    assert_eq!(&lw[3..], &lt[..]);
+    // And it predicts the robot.
+    let gmr = phasekit_gmr::HmmRegression::new(union, &[0], &[1]).unwrap();
+    let human: Vec<f64> = seqs[0].chunks_exact(2).map(|f| f[0]).collect();
+    let p = gmr.predict(Frames::new(&human, 1).unwrap(), false).unwrap();
+    assert!(p.mean.iter().all(|v| v.is_finite()));
+}

@@ -103,6 +103,7 @@ pub fn preset_options(m: &ModelArgs) -> Result<PresetOptions> {
         .tol(m.tol)
         .restarts(m.restarts)
         .seed(m.seed)
+        .emission(m.emission)
         .build()?)
 }
 

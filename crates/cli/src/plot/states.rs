@@ -14,8 +14,8 @@ use crate::error::{CliError, Result};
 use crate::model_file::ModelFile;
 use crate::pipeline::joint_features_raw;
 use crate::units::{sig4, Unit};
-use phasekit_emission::Gaussian;
 use phasekit_tsc::Model;
+use phasekit_tsc::StateMoments;
 use plotters::element::DashedPathElement;
 use plotters::prelude::*;
 
@@ -26,7 +26,7 @@ pub const MAX_TRAJECTORY_POINTS: usize = 20_000;
 /// Gaussians `take` of `g` (model units), in data units, projected; those at
 /// positions ≥ `first_transition` of `take` are transition states/clusters.
 fn gaussians(
-    g: &Gaussian,
+    g: &dyn StateMoments,
     take: &[usize],
     first_transition: usize,
     proj: &Projection,
@@ -45,8 +45,8 @@ fn gaussians(
     take.iter()
         .enumerate()
         .map(|(pos, &i)| {
-            let m = g.mean(i);
-            let c = g.covariance(i);
+            let m = g.state_mean(i);
+            let c = g.state_covariance(i);
             let mean: Vec<f64> = (0..n)
                 .map(|a| m[proj.dims[a]] * scale[a] + shift[a])
                 .collect();

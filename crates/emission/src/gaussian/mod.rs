@@ -737,6 +737,10 @@ pub struct GaussianSplit {
 impl GaussianSplit {
     fn delta(&mut self, state: usize, input: &[f64]) -> f64 {
         let ni = self.input.len();
+        if ni == 0 {
+            // No input: the outputs' marginal (see `Conditional::conditional`).
+            return 0.0;
+        }
         for (k, v) in input.iter().enumerate() {
             self.diff[k] = v - self.mu_in[state * ni + k];
         }
