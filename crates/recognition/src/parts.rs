@@ -20,20 +20,37 @@
 //!   action HMM's human marginal, filtered alongside) and the prediction stays
 //!   the predicting model's.
 
-use crate::error::Result;
+use crate::error::{RecognitionError, Result};
 use phasekit_emission::Gaussian;
 use phasekit_gmm::Gmm;
 use phasekit_hmm::{ForwardFilter, Hmm};
-use phasekit_tsc::{Model, OnlinePredictor, Roles};
+use phasekit_tsc::{AnyEmission, Model, OnlinePredictor, Roles};
 
 /// The joint HMM whose human marginal `model`'s prediction filters with (see
 /// the module documentation).
+///
+/// The library composes its actions' Gaussian states (the composed HMM, the
+/// threshold model): a model whose states emit another distribution
+/// (`--emission student-t`, `gmm-K`) is refused here, by name, until those
+/// compositions take any emission.
 pub fn action_hmm(model: &Model) -> Result<Hmm<Gaussian>> {
     match model {
-        Model::Hmm(h) => Ok(h.clone()),
-        Model::TscHmm { model, .. } => Ok(model.union().unwrap_or(model.base()).clone()),
+        Model::Hmm(h) => gaussian_hmm(h),
+        Model::TscHmm { model, .. } => gaussian_hmm(model.union().unwrap_or(model.base())),
         Model::Gmm(g) | Model::GmmTsc { mixture: g, .. } => mixture_as_hmm(g),
     }
+}
+
+/// The same HMM with its Gaussian emission; an error for any other emission.
+fn gaussian_hmm(h: &Hmm<AnyEmission>) -> Result<Hmm<Gaussian>> {
+    let g = h.emission().as_gaussian().ok_or_else(|| {
+        RecognitionError::InvalidLibrary(format!(
+            "an action's states emit `{}`: a library of interactions takes Gaussian emissions \
+             (full, diag, spherical, tied) for now",
+            h.emission().kind()
+        ))
+    })?;
+    Ok(Hmm::new(h.start().to_vec(), h.transition().to_vec(), g.clone())?)
 }
 
 /// A mixture as an HMM: `π = w`, every row of `A` equal to `w`, the
