@@ -104,7 +104,7 @@ impl ComposedRecogniser {
     pub fn new(library: &Library, with_covariance: bool) -> Result<Self> {
         let c = ComposedHmm::new(library)?;
         let roles = library.roles();
-        let online = HmmRegression::new(&c.hmm, &roles.human(), &roles.robot())?.online();
+        let online = HmmRegression::new(&c.hmm, roles.human(), roles.robot())?.online();
         let mut r = ComposedRecogniser {
             online,
             posterior: vec![0.0; c.actions.len()],

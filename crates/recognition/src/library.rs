@@ -230,7 +230,7 @@ impl FittedAction {
         let mut fold_hmms = Vec::new();
         let mut failed_folds = 0;
         let human_hmm =
-            |m: &Model| -> Result<Hmm<Gaussian>> { Ok(action_hmm(m)?.marginal(&roles.human())?) };
+            |m: &Model| -> Result<Hmm<Gaussian>> { Ok(action_hmm(m)?.marginal(roles.human())?) };
         if folds >= 2 {
             for f in 0..folds {
                 let train: Vec<usize> = (0..n).filter(|k| k % folds != f).collect();
@@ -756,7 +756,7 @@ impl Library {
             .iter()
             .map(|a| {
                 let m = a.recognition.as_ref().unwrap_or(&a.model);
-                Ok(action_hmm(m)?.marginal(&self.roles.human())?)
+                Ok(action_hmm(m)?.marginal(self.roles.human())?)
             })
             .collect::<Result<Vec<_>>>()?;
         threshold_hmm(&marginals)
@@ -853,7 +853,7 @@ fn calibrate(
         .iter()
         .map(|a| {
             let m = a.recognition.as_ref().unwrap_or(&a.model);
-            Ok(action_hmm(m)?.marginal(&roles.human())?)
+            Ok(action_hmm(m)?.marginal(roles.human())?)
         })
         .collect::<Result<Vec<_>>>()?;
     let h = roles.human().len();
