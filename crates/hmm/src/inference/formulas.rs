@@ -26,7 +26,10 @@ fn n_states(log_transition: &[f64]) -> usize {
 }
 
 fn n_frames(s: usize, log_b: &[f64]) -> usize {
-    assert!(s > 0 && log_b.len().is_multiple_of(s), "log_b must be T × S");
+    assert!(
+        s > 0 && log_b.len().is_multiple_of(s),
+        "log_b must be T × S"
+    );
     log_b.len() / s
 }
 
