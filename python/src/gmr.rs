@@ -62,7 +62,7 @@ impl GmrCore {
         };
         let r = HmmRegression::new(h, &input, &output).map_err(value_error)?;
         Ok(GmrCore {
-            predictor: Predictor::Hmm(r),
+            predictor: Predictor::hmm(r),
             n_in: input.len(),
         })
     }
@@ -73,7 +73,7 @@ impl GmrCore {
     fn from_gmm(gmm: &GmmCore, input: Vec<usize>, output: Vec<usize>) -> PyResult<Self> {
         let r = GmmRegression::new(&gmm.model, &input, &output).map_err(value_error)?;
         Ok(GmrCore {
-            predictor: Predictor::Gmm(r),
+            predictor: Predictor::gmm(r),
             n_in: input.len(),
         })
     }

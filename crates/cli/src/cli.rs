@@ -300,10 +300,7 @@ or by G-means with select=gmeans (hmm, tsc-hmm*: λ's states; gmm-tsc: its mixtu
 
 /// The help text after a command's options: examples, then the presets.
 fn with_presets(examples: &str) -> String {
-    format!(
-        "{examples}\n\nPresets: {}",
-        phasekit_tsc::PRESETS.join(", ")
-    )
+    format!("{examples}\n\nPresets: {}", phasekit_tsc::Preset::names())
 }
 
 /// `phasekit fit`.

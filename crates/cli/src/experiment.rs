@@ -32,7 +32,7 @@ pub struct NamedMethod {
 /// (`bic`|`gmeans`), `max-states`, `rho`, `time-clusters`. The preset checks the result.
 pub fn parse_method(spec: &str, defaults: &PresetOptions) -> Result<NamedMethod, String> {
     let (name, rest) = spec.split_once(':').unwrap_or((spec, ""));
-    let mut o = defaults.clone();
+    let mut o = defaults.to_builder();
     let mut seen: Vec<&str> = Vec::new();
     for kv in rest.split(',').filter(|s| !s.is_empty()) {
         let (k, v) = kv
@@ -47,27 +47,27 @@ pub fn parse_method(spec: &str, defaults: &PresetOptions) -> Result<NamedMethod,
         seen.push(k);
         let bad = |e: &dyn std::fmt::Display| format!("`{kv}` in `{spec}`: {e}");
         match k {
-            "states" if v == "auto" => o.auto_states = true,
-            "states" => {
-                o.states = v.parse().map_err(|e| bad(&e))?;
-                o.auto_states = false;
-            }
-            "tsc-states" if v == "auto" => o.tsc_states = 0,
-            "tsc-states" => o.tsc_states = v.parse().map_err(|e| bad(&e))?,
-            "window" => o.window = v.parse().map_err(|e| bad(&e))?,
-            "reg" => o.reg = v.parse().map_err(|e| bad(&e))?,
-            "max-iter" => o.max_iter = v.parse().map_err(|e| bad(&e))?,
-            "tol" => o.tol = v.parse().map_err(|e| bad(&e))?,
-            "restarts" => o.restarts = v.parse().map_err(|e| bad(&e))?,
-            "seed" => o.seed = v.parse().map_err(|e| bad(&e))?,
-            "select" => o.select = Selector::parse(v).map_err(|e| bad(&e))?,
-            "max-states" => o.max_states = v.parse().map_err(|e| bad(&e))?,
-            "rho" => o.rho = v.parse().map_err(|e| bad(&e))?,
-            "time-clusters" => o.time_clusters = v.parse().map_err(|e| bad(&e))?,
+            "states" if v == "auto" => o = o.auto_states(),
+            "states" => o = o.states(v.parse().map_err(|e| bad(&e))?),
+            "tsc-states" if v == "auto" => o = o.tsc_states(0),
+            "tsc-states" => o = o.tsc_states(v.parse().map_err(|e| bad(&e))?),
+            "window" => o = o.window(v.parse().map_err(|e| bad(&e))?),
+            "reg" => o = o.reg(v.parse().map_err(|e| bad(&e))?),
+            "max-iter" => o = o.max_iter(v.parse().map_err(|e| bad(&e))?),
+            "tol" => o = o.tol(v.parse().map_err(|e| bad(&e))?),
+            "restarts" => o = o.restarts(v.parse().map_err(|e| bad(&e))?),
+            "seed" => o = o.seed(v.parse().map_err(|e| bad(&e))?),
+            "select" => o = o.select(v.parse::<Selector>().map_err(|e| bad(&e))?),
+            "max-states" => o = o.max_states(v.parse().map_err(|e| bad(&e))?),
+            "rho" => o = o.rho(v.parse().map_err(|e| bad(&e))?),
+            "time-clusters" => o = o.time_clusters(v.parse().map_err(|e| bad(&e))?),
             other => return Err(format!("unknown key `{other}` in `{spec}`")),
         }
     }
-    let method = Method::preset(name, &o).map_err(|e| e.to_string())?;
+    let cli = |e: phasekit_tsc::TscError| crate::error::CliError::from(e).message;
+    let o = o.build().map_err(|e| format!("`{spec}`: {}", cli(e)))?;
+    let preset = name.parse::<phasekit_tsc::Preset>().map_err(cli)?;
+    let method = Method::preset(preset, &o).map_err(cli)?;
     Ok(NamedMethod {
         label: spec.to_string(),
         method,
@@ -351,26 +351,25 @@ fn run_seed(
     };
     let train: Vec<Vec<f64>> = chosen.iter().map(|s| norm(s)).collect();
     let data = SequenceSet::new(&train, d).map_err(|e| e.to_string())?;
-    let roles = Roles {
-        human: layout.human.clone(),
-        robot: layout.robot.clone(),
-    };
+    let roles =
+        Roles::new(layout.human.clone(), layout.robot.clone()).map_err(|e| e.to_string())?;
     let clock = Instant::now();
-    let (model, _) = method.fit(&data, &roles).map_err(|e| e.to_string())?;
+    let (model, _) = method
+        .fit(&data, &roles)
+        .map_err(|e| crate::error::CliError::from(e).message)?;
     let fit_seconds = clock.elapsed().as_secs_f64();
     let predictor = model.predictor(&roles).map_err(|e| e.to_string())?;
     let o = layout.robot.len();
     let (mut se, mut frames, mut predict_seconds) = (0.0, 0usize, 0.0);
     for (k, test) in prep.test.iter().enumerate() {
         let normed = norm(removed.map_or(test, |(_, t)| &t[k]));
-        let human = phasekit_tsc::preset::human_frames(
-            Frames::new(&normed, d).map_err(|e| e.to_string())?,
-            &roles,
-        );
+        let human =
+            phasekit_tsc::human_frames(Frames::new(&normed, d).map_err(|e| e.to_string())?, &roles)
+                .map_err(|e| e.to_string())?;
         let clock = Instant::now();
         let pred = predictor
             .predict(
-                Frames::new(&human, roles.human.len()).map_err(|e| e.to_string())?,
+                Frames::new(&human, roles.human().len()).map_err(|e| e.to_string())?,
                 false,
             )
             .map_err(|e| e.to_string())?;

@@ -206,14 +206,11 @@ impl ModelFile {
         layout: Layout,
         feature_spec: FeatureSpec,
         standardisation: Option<Standardisation>,
+        roles: Roles,
         method: MethodInfo,
         fit: FitSummary,
         model: Model,
     ) -> Self {
-        let roles = Roles {
-            human: layout.human.clone(),
-            robot: layout.robot.clone(),
-        };
         ModelFile {
             format: FORMAT.into(),
             version: VERSION,
@@ -332,12 +329,12 @@ impl ModelFile {
                 d
             )));
         }
-        if self.roles.human != l.human || self.roles.robot != l.robot {
+        if self.roles.human() != l.human || self.roles.robot() != l.robot {
             return Err(CliError::new("roles and layout disagree"));
         }
         self.roles.check(d)?;
-        // The model's parts must agree (e.g. a union composition needs its union HMM),
-        // and its recorded settings must be valid ones.
+        // The model's parts must agree (e.g. a union composition needs its union HMM;
+        // its recorded settings were validated when read).
         self.model.validate()?;
         for (what, g) in gaussians(&self.model) {
             check_scale(what, g)?;
@@ -349,7 +346,6 @@ impl ModelFile {
                 ));
             }
         }
-        self.method.settings.validate()?;
         let hv = matches!(
             l.velocity,
             crate::data::Velocity::Both | crate::data::Velocity::Human
@@ -398,10 +394,10 @@ fn gaussians(model: &Model) -> Vec<(&'static str, &Gaussian)> {
         Model::Hmm(h) => vec![("the HMM", h.emission())],
         Model::TscHmm { model, .. } => {
             let mut v = vec![
-                ("the base HMM", model.base.emission()),
-                ("the transition HMM", model.transition.emission()),
+                ("the base HMM", model.base().emission()),
+                ("the transition HMM", model.transition().emission()),
             ];
-            if let Some(u) = &model.union {
+            if let Some(u) = model.union() {
                 v.push(("the union HMM", u.emission()));
             }
             v
@@ -409,10 +405,10 @@ fn gaussians(model: &Model) -> Vec<(&'static str, &Gaussian)> {
         Model::Gmm(g) => vec![("the mixture", g.components())],
         Model::GmmTsc { tsc, mixture } => vec![
             ("the mixture", mixture.components()),
-            ("the windowed mixture", tsc.mixture.components()),
+            ("the windowed mixture", tsc.mixture().components()),
             (
                 "the transition mixture",
-                tsc.transition_mixture.components(),
+                tsc.transition_mixture().components(),
             ),
         ],
     }

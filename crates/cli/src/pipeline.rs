@@ -386,7 +386,7 @@ fn unexplained(
         Frames::new(frames, d).map_err(|e| CliError::new(format!("{}: {e}", path.display())))?;
     let log_b = match &mf.model {
         Model::Hmm(h) => h.emission().log_density(f)?,
-        Model::TscHmm { model, .. } => model.base.emission().log_density(f)?,
+        Model::TscHmm { model, .. } => model.base().emission().log_density(f)?,
         Model::Gmm(g) | Model::GmmTsc { mixture: g, .. } => g.components().log_density(f)?,
     };
     let s = log_b.len() / f.len().max(1);
@@ -491,30 +491,9 @@ impl<'a> StreamPredictor<'a> {
             rejected = true;
         }
         let observed = self.features.iter().filter(|v| !v.is_nan()).count();
-        let evidence = match &mut self.online {
-            OnlinePredictor::Gmm {
-                regression,
-                weights,
-                mean,
-                covariance,
-                scratch,
-            } => regression.predict_one_into(
-                &self.features,
-                weights,
-                mean,
-                with_covariance.then_some(&mut covariance[..]),
-                scratch,
-            )?,
-            online => {
-                online.step(&self.features, with_covariance)?;
-                match online {
-                    OnlinePredictor::Hmm(r) | OnlinePredictor::Gated { base: r, .. } => {
-                        r.evidence()
-                    }
-                    OnlinePredictor::Gmm { .. } => unreachable!("handled above"),
-                }
-            }
-        };
+        let evidence = self
+            .online
+            .step_with_evidence(&self.features, with_covariance)?;
         rejected |= evidence.rejected;
         if rejected {
             self.diff.forget_last();
@@ -530,7 +509,7 @@ impl<'a> StreamPredictor<'a> {
             log_predictive,
             status: FrameStatus::of(self.mf, observed, log_predictive, rejected),
         };
-        self.mean.copy_from_slice(online_mean(&self.online));
+        self.mean.copy_from_slice(self.online.mean());
         if with_covariance {
             self.covariance.copy_from_slice(self.online.covariance());
         }
@@ -552,14 +531,6 @@ impl<'a> StreamPredictor<'a> {
     pub fn reset(&mut self) {
         self.online.reset();
         self.diff.reset();
-    }
-}
-
-/// The mean of an online predictor's last step.
-fn online_mean(o: &OnlinePredictor) -> &[f64] {
-    match o {
-        OnlinePredictor::Hmm(r) => r.mean(),
-        OnlinePredictor::Gated { mean, .. } | OnlinePredictor::Gmm { mean, .. } => mean,
     }
 }
 

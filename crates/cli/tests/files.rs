@@ -448,3 +448,57 @@ fn segment_help_lists_only_formats_that_work_and_examples_do_not_wrap() {
         }
     }
 }
+
+#[test]
+fn evaluate_refuses_too_many_columns_for_the_frames_before_any_seed() {
+    // The check `fit` makes, in `evaluate` too: 400 columns (800 features with
+    // velocities) and 3 × 60 training frames (a seed trains on one of them).
+    let dir = tempfile::tempdir().unwrap();
+    let action = dir.path().join("wide");
+    std::fs::create_dir(&action).unwrap();
+    let cols = 400;
+    let names: Vec<String> = (0..cols)
+        .map(|c| {
+            if c < cols / 2 {
+                format!("h{c}")
+            } else {
+                format!("r{c}")
+            }
+        })
+        .collect();
+    let mut text = names.join(",") + "\n";
+    for t in 0..60 {
+        let row: Vec<String> = (0..cols).map(|c| format!("{}", (t * c) % 7)).collect();
+        text.push_str(&(row.join(",") + "\n"));
+    }
+    for f in [
+        "train_00.csv",
+        "train_01.csv",
+        "train_02.csv",
+        "test_00.csv",
+    ] {
+        std::fs::write(action.join(f), &text).unwrap();
+    }
+    phasekit()
+        .args([
+            "evaluate",
+            "--methods",
+            "hmm",
+            "--human",
+            "h*",
+            "--robot",
+            "r*",
+            "--seeds",
+            "1",
+            "--data",
+        ])
+        .arg(dir.path())
+        .assert()
+        .failure()
+        .code(1)
+        .stderr(
+            predicate::str::contains("action wide, hmm")
+                .and(predicate::str::contains("800 features from 60 frames"))
+                .and(predicate::str::contains("select fewer columns")),
+        );
+}

@@ -29,6 +29,9 @@ pub enum GmmInit {
 }
 
 /// Expected statistics of a mixture E-step.
+///
+/// The fields are public so that statistics computed elsewhere can be
+/// combined and maximised ([`Gmm::maximise`]).
 #[derive(Debug, Clone)]
 pub struct MixtureStatistics<S> {
     /// `Σ_t log p(x_t)`.
@@ -191,14 +194,34 @@ impl TryFrom<EmRaw> for Em {
     }
 }
 
+/// The covariance regularisation of [`Em::default`]: `1e-6` added to every
+/// covariance diagonal after each M-step, scikit-learn's default `reg_covar`
+/// (and the same as `phasekit_hmm::default_regularisation`).
+///
+/// It keeps a constant or collinear feature from making a covariance
+/// singular and is negligible against the variances of data on a unit scale.
+/// It is in the data's units squared: on data whose variances are near `1e-6`
+/// or below it dominates them (standardise such data, or choose the
+/// regularisation). [`Regularisation::none`] gives plain maximum likelihood
+/// (the monotone EM of the textbook).
+pub fn default_regularisation() -> Regularisation {
+    // 1e-6 is finite and non-negative, which is all `add_diagonal` checks.
+    Regularisation::add_diagonal(DEFAULT_ADDED_DIAGONAL).unwrap_or_default()
+}
+
+/// The amount [`default_regularisation`] adds to every covariance diagonal.
+pub const DEFAULT_ADDED_DIAGONAL: f64 = 1e-6;
+
 impl Default for Em {
-    /// 100 iterations, tolerance `1e-3` on the mean log-likelihood per frame
-    /// (scikit-learn's defaults), no regularisation, k-means++ initialisation, one run, seed 0.
+    /// 100 iterations, tolerance `1e-3` on the mean log-likelihood per frame,
+    /// `1e-6` added to every covariance diagonal ([`default_regularisation`];
+    /// all three are scikit-learn's defaults), k-means++ initialisation, one
+    /// run, seed 0.
     fn default() -> Self {
         Em {
             max_iter: 100,
             tol: 1e-3,
-            regularisation: Regularisation::default(),
+            regularisation: default_regularisation(),
             init: GmmInit::KMeans,
             restarts: 1,
             seed: 0,
@@ -274,8 +297,9 @@ impl EmBuilder {
     }
 }
 
-/// What a mixture fit did.
+/// What a mixture fit did (read-only: made by [`Em`], new fields may be added).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[non_exhaustive]
 pub struct GmmFitReport {
     /// M-steps of the returned run.
     pub iterations: usize,
@@ -295,8 +319,9 @@ pub struct GmmFitReport {
     pub fit_seconds: f64,
 }
 
-/// A fitted mixture and its report.
+/// A fitted mixture and its report (made by [`Em`]).
 #[derive(Debug, Clone)]
+#[non_exhaustive]
 pub struct GmmFit<E: Emission> {
     /// The model whose log-likelihood was evaluated last.
     pub model: Gmm<E>,
@@ -308,6 +333,46 @@ impl Em {
     /// A builder starting from the defaults.
     pub fn builder() -> EmBuilder {
         EmBuilder(Em::default())
+    }
+
+    /// A builder starting from these settings (to change some of them).
+    pub fn to_builder(&self) -> EmBuilder {
+        EmBuilder(self.clone())
+    }
+
+    /// The regularisation of every M-step and of the initialisation.
+    pub fn regularisation(&self) -> &Regularisation {
+        &self.regularisation
+    }
+
+    /// At most this many M-steps.
+    pub fn max_iter(&self) -> usize {
+        self.max_iter
+    }
+
+    /// The convergence tolerance on the objective's gain per frame.
+    pub fn tol(&self) -> f64 {
+        self.tol
+    }
+
+    /// The initialisation.
+    pub fn init(&self) -> GmmInit {
+        self.init
+    }
+
+    /// The number of runs.
+    pub fn restarts(&self) -> usize {
+        self.restarts
+    }
+
+    /// The seed of every random choice.
+    pub fn seed(&self) -> u64 {
+        self.seed
+    }
+
+    /// The size of the dedicated thread pool (`None`: rayon's global pool).
+    pub fn threads(&self) -> Option<usize> {
+        self.threads
     }
 
     /// Initial mixture from an emission template with `K` states.

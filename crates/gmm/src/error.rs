@@ -1,11 +1,13 @@
 //! Errors of the GMM crate.
 
 use phasekit_emission::EmissionError;
-use phasekit_hmm::HmmError;
 use thiserror::Error;
 
 /// What went wrong when building, fitting or selecting a mixture.
+///
+/// Non-exhaustive: new failure modes may be added without a breaking change.
 #[derive(Debug, Clone, PartialEq, Error)]
+#[non_exhaustive]
 pub enum GmmError {
     /// A parameter is outside its domain.
     #[error("invalid parameter `{name}`: {reason}")]
@@ -18,9 +20,6 @@ pub enum GmmError {
     /// An emission error.
     #[error(transparent)]
     Emission(#[from] EmissionError),
-    /// An HMM error (model selection over HMM state counts).
-    #[error(transparent)]
-    Hmm(#[from] HmmError),
     /// Too few frames for the requested number of components.
     #[error("too few frames: {0}")]
     TooFewFrames(String),

@@ -1,44 +1,35 @@
-//! Choosing the number of components (or HMM states): BIC over a range, and
+//! Choosing the number of mixture components: BIC over a range, and
 //! G-means (Hamerly & Elkan, "Learning the k in k-means", NIPS 2003).
+//!
+//! The number of HMM states is chosen in `phasekit-hmm` (BIC,
+//! `select_states_bic`) and, by G-means, in `phasekit-tsc`, which sees both
+//! crates: this crate does not depend on the HMM.
 
 use crate::em::Em;
 use crate::error::{GmmError, Result};
 use phasekit_emission::kmeans::lloyd;
-use phasekit_emission::{Emission, Frames, SequenceSet};
-use phasekit_hmm::{BaumWelch, HmmFit};
+use phasekit_emission::{Emission, Frames};
 use serde::{Deserialize, Serialize};
-use std::ops::RangeInclusive;
 
-/// Scores of every candidate and the chosen one.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+/// The BIC of every candidate number of components and the one with the lowest.
+#[derive(Debug, Clone, PartialEq)]
+#[non_exhaustive]
 pub struct Selection {
-    /// The number of components (states) with the lowest score.
+    /// The number of components with the lowest BIC.
     pub best: usize,
     /// `(k, BIC)` for every candidate that could be fitted, in the order tried.
     pub scores: Vec<(usize, f64)>,
-    /// `(k, error message)` for candidates that could not be fitted.
-    pub failures: Vec<(usize, String)>,
+    /// `(k, why)` for every candidate that could not be fitted.
+    pub failures: Vec<(usize, GmmError)>,
 }
 
-fn pick(scores: Vec<(usize, f64)>, failures: Vec<(usize, String)>) -> Result<Selection> {
-    let best = scores
-        .iter()
-        .filter(|(_, s)| s.is_finite())
-        .min_by(|a, b| a.1.total_cmp(&b.1))
-        .map(|(k, _)| *k)
-        .ok_or_else(|| GmmError::InvalidParameter {
-            name: "candidates",
-            reason: format!("no candidate could be fitted: {failures:?}"),
-        })?;
-    Ok(Selection {
-        best,
-        scores,
-        failures,
-    })
-}
-
-/// BIC `−2 log p(X) + p log N` of a mixture fitted for every `k` in `candidates`;
-/// `template(k)` gives the component structure with `k` states.
+/// BIC `−2 log p(X) + p log N` ([`crate::Gmm::bic`]) of a mixture fitted by
+/// `em` for every `k` in `candidates`; `template(k)` gives the component
+/// structure with `k` states (its parameters are ignored).
+///
+/// A candidate that cannot be built or fitted is kept in
+/// [`Selection::failures`] with its error; the others compete. Errors when
+/// no candidate is given, or when none could be fitted (naming each and why).
 pub fn select_mixture_bic<E: Emission>(
     em: &Em,
     template: impl Fn(usize) -> phasekit_emission::Result<E>,
@@ -53,93 +44,37 @@ pub fn select_mixture_bic<E: Emission>(
             .and_then(|f| f.model.bic(frames))
         {
             Ok(bic) => scores.push((k, bic)),
-            Err(e) => failures.push((k, e.to_string())),
+            Err(e) => failures.push((k, e)),
         }
     }
-    pick(scores, failures)
-}
-
-/// BIC of an HMM fitted by `bw` for every state count in `candidates`.
-pub fn select_hmm_states_bic<E: Emission>(
-    bw: &BaumWelch,
-    template: impl Fn(usize) -> phasekit_emission::Result<E>,
-    data: &SequenceSet,
-    candidates: impl IntoIterator<Item = usize>,
-) -> Result<Selection> {
-    let (mut scores, mut failures) = (Vec::new(), Vec::new());
-    for k in candidates {
-        let r = template(k)
-            .map_err(GmmError::from)
-            .and_then(|t| Ok(bw.fit(&t, data)?))
-            .and_then(|f| Ok(f.model.bic(data)?));
-        match r {
-            Ok(bic) => scores.push((k, bic)),
-            Err(e) => failures.push((k, e.to_string())),
-        }
-    }
-    pick(scores, failures)
-}
-
-/// The number of HMM states chosen by G-means, and the HMM fitted with it.
-#[derive(Debug, Clone)]
-pub struct GMeansStates<E: Emission> {
-    /// `best` is the number of clusters `K` G-means found; `scores` holds
-    /// `(K, BIC)` of the fitted HMM; `failures` is empty (a failed fit is an error).
-    pub selection: Selection,
-    /// The G-means clustering of the frames of all sequences.
-    pub clusters: GMeansResult,
-    /// The HMM with `K` states fitted by the given Baum-Welch settings.
-    pub fitted: HmmFit<E>,
-}
-
-/// The number of HMM states by G-means (Hamerly & Elkan 2003), as the seed
-/// paper proposes: `K` is the number of clusters [`gmeans`] finds on the frames
-/// of all sequences pooled (time order ignored), then an HMM with structure
-/// `template(K)` is fitted by `bw` (its initialisation, restarts and seed).
-///
-/// `K` is clamped to `range` (e.g. to at most the shortest sequence's length,
-/// which temporal k-bins needs). The returned [`Selection`] has `best = K` and
-/// the BIC `−2 log p(X) + p log N` of the fitted HMM as its one score, so it
-/// reads like [`select_hmm_states_bic`]'s. Errors if the data are empty or the
-/// range is empty, if `template(K)` cannot be built, or if the fit fails (naming `K`).
-pub fn select_hmm_states_gmeans<E: Emission>(
-    bw: &BaumWelch,
-    template: impl Fn(usize) -> phasekit_emission::Result<E>,
-    data: &SequenceSet,
-    settings: GMeans,
-    range: RangeInclusive<usize>,
-) -> Result<GMeansStates<E>> {
-    if data.is_empty() {
-        return Err(GmmError::TooFewFrames("no sequences given".into()));
-    }
-    if range.is_empty() || *range.start() == 0 {
-        return Err(GmmError::InvalidParameter {
-            name: "range",
+    let best = scores
+        .iter()
+        .filter(|(_, s)| s.is_finite())
+        .min_by(|a, b| a.1.total_cmp(&b.1))
+        .map(|(k, _)| *k);
+    match best {
+        Some(best) => Ok(Selection {
+            best,
+            scores,
+            failures,
+        }),
+        None if scores.is_empty() && failures.is_empty() => Err(GmmError::InvalidParameter {
+            name: "candidates",
+            reason: "no candidate number of components was given".into(),
+        }),
+        None => Err(GmmError::InvalidParameter {
+            name: "candidates",
             reason: format!(
-                "no state count in {}..={} (need 1 ≤ min ≤ max)",
-                range.start(),
-                range.end()
+                "no candidate number of components could be fitted with a finite BIC: {}",
+                scores
+                    .iter()
+                    .map(|(k, b)| format!("{k} components: BIC {b}"))
+                    .chain(failures.iter().map(|(k, e)| format!("{k} components: {e}")))
+                    .collect::<Vec<_>>()
+                    .join("; ")
             ),
-        });
+        }),
     }
-    let clusters = gmeans(data.all_frames(), settings)?;
-    let k = clusters.k.clamp(*range.start(), *range.end());
-    let context = |e: String| GmmError::InvalidParameter {
-        name: "states",
-        reason: format!("G-means chose {k} states, but the HMM cannot be fitted: {e}"),
-    };
-    let t = template(k).map_err(|e| context(e.to_string()))?;
-    let fitted = bw.fit(&t, data).map_err(|e| context(e.to_string()))?;
-    let bic = fitted.model.bic(data)?;
-    Ok(GMeansStates {
-        selection: Selection {
-            best: k,
-            scores: vec![(k, bic)],
-            failures: Vec::new(),
-        },
-        clusters,
-        fitted,
-    })
 }
 
 /// Anderson–Darling statistic `A²` of `x` against a normal with mean and variance
@@ -162,7 +97,8 @@ pub fn anderson_darling_normal(x: &[f64]) -> Option<(f64, f64)> {
     let nf = n as f64;
     let mean = x.iter().sum::<f64>() / nf;
     let var = x.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (nf - 1.0);
-    if !(var > 0.0) {
+    // Zero or NaN variance: no test.
+    if var.is_nan() || var <= 0.0 {
         return None;
     }
     let sd = var.sqrt();
@@ -240,6 +176,10 @@ impl GMeans {
     /// A builder starting from [`GMeans::default`].
     pub fn builder() -> GMeansBuilder {
         GMeansBuilder(GMeans::default())
+    }
+    /// A builder starting from these settings (to change some of them).
+    pub fn to_builder(&self) -> GMeansBuilder {
+        GMeansBuilder(*self)
     }
     /// Significance level `α` of the Anderson–Darling test: a cluster is split when `p < α`.
     pub fn alpha(&self) -> f64 {
@@ -322,6 +262,7 @@ impl GMeansBuilder {
 
 /// Result of [`gmeans`].
 #[derive(Debug, Clone, PartialEq)]
+#[non_exhaustive]
 pub struct GMeansResult {
     /// Number of clusters found.
     pub k: usize,
@@ -329,6 +270,10 @@ pub struct GMeansResult {
     pub centroids: Vec<f64>,
     /// Cluster of every frame.
     pub labels: Vec<usize>,
+    /// Whether [`GMeans::max_k`] stopped the splitting: some cluster still failed
+    /// the normality test, so `k` is the cap rather than G-means' answer (which
+    /// is larger).
+    pub capped: bool,
 }
 
 /// G-means: start from one cluster; split a cluster while the projection of its
@@ -376,12 +321,7 @@ pub fn gmeans(frames: Frames<'_>, settings: GMeans) -> Result<GMeansResult> {
         // Clusters after the splits decided so far in this round.
         let mut total = k;
         for j in 0..k {
-            let members: Vec<f64> = frames
-                .iter()
-                .zip(&km.labels)
-                .filter(|(_, l)| **l == j)
-                .flat_map(|(x, _)| x.iter().copied())
-                .collect();
+            let members = members_of(frames, &km.labels, j);
             let c = &centroids[j * d..(j + 1) * d];
             let grow = total < settings.max_k;
             match (grow, split_cluster(&members, c, d, settings)) {
@@ -404,11 +344,29 @@ pub fn gmeans(frames: Frames<'_>, settings: GMeans) -> Result<GMeansResult> {
         }
     }
     let km = lloyd(frames, centroids, settings.max_iter)?;
+    let k = km.centroids.len() / d;
+    // At the cap, G-means' own answer is known only if no final cluster would split.
+    let capped = k >= settings.max_k
+        && (0..k).any(|j| {
+            let members = members_of(frames, &km.labels, j);
+            split_cluster(&members, &km.centroids[j * d..(j + 1) * d], d, settings).is_some()
+        });
     Ok(GMeansResult {
-        k: km.centroids.len() / d,
+        k,
         centroids: km.centroids,
         labels: km.labels,
+        capped,
     })
+}
+
+/// The frames (`m × D`, row-major) labelled `j`.
+fn members_of(frames: Frames<'_>, labels: &[usize], j: usize) -> Vec<f64> {
+    frames
+        .iter()
+        .zip(labels)
+        .filter(|(_, l)| **l == j)
+        .flat_map(|(x, _)| x.iter().copied())
+        .collect()
 }
 
 /// The two children of a cluster if the Anderson–Darling test rejects its Gaussianity.
@@ -433,7 +391,7 @@ fn split_cluster(members: &[f64], c: &[f64], d: usize, settings: GMeans) -> Opti
                 (0, f64::NEG_INFINITY),
                 |b, (i, v)| if *v > b.1 { (i, *v) } else { b },
             );
-    if !(lambda > 0.0) {
+    if lambda.is_nan() || lambda <= 0.0 {
         return None;
     }
     let scale = (2.0 * lambda / std::f64::consts::PI).sqrt();
@@ -445,7 +403,7 @@ fn split_cluster(members: &[f64], c: &[f64], d: usize, settings: GMeans) -> Opti
     let children = lloyd(frames, init, settings.max_iter).ok()?.centroids;
     let v: Vec<f64> = (0..d).map(|r| children[r] - children[d + r]).collect();
     let vv: f64 = v.iter().map(|x| x * x).sum();
-    if !(vv > 0.0) {
+    if vv.is_nan() || vv <= 0.0 {
         return None;
     }
     let proj: Vec<f64> = members

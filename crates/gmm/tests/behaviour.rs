@@ -9,7 +9,8 @@
 //! * the E-step and the whole fit are bit-identical with 1 and 4 threads on
 //!   data spanning five E-step chunks of 4096 frames;
 //! * BIC and G-means pick the true number of components of well-separated
-//!   blobs, BIC the true number of states of a generated 3-state HMM;
+//!   blobs (the number of HMM states is tested in `phasekit-hmm` and
+//!   `phasekit-tsc`, which choose it);
 //! * Anderson–Darling: the statistic and p-value against reference values from
 //!   SciPy/statsmodels, calibration of the p-value under the null by Monte
 //!   Carlo, tiny p-values for uniform and bimodal samples of any size;
@@ -20,14 +21,10 @@
 //! fixed seed unless `PROPTEST_RNG_SEED` is set.
 
 use nalgebra::DMatrix;
-use phasekit_emission::{
-    CovarianceType, EmissionError, Frames, Gaussian, Regularisation, SequenceSet, Shape,
-};
+use phasekit_emission::{CovarianceType, EmissionError, Frames, Gaussian, Regularisation, Shape};
 use phasekit_gmm::{
-    anderson_darling_normal, gmeans, select_hmm_states_bic, select_mixture_bic, Em, GMeans, Gmm,
-    GmmError, GmmInit,
+    anderson_darling_normal, gmeans, select_mixture_bic, Em, GMeans, Gmm, GmmError, GmmInit,
 };
-use phasekit_hmm::{BaumWelch, Hmm, HmmInit};
 use proptest::prelude::*;
 use proptest::test_runner::RngSeed;
 use rand::{Rng, SeedableRng};
@@ -623,48 +620,6 @@ fn gmeans_splits_two_large_well_separated_blobs() {
     let g = gmeans(frames, GMeans::default()).unwrap();
     assert_eq!(g.k, 2);
     assert_pure(&g.labels, &labels, 2);
-}
-
-#[test]
-fn bic_picks_the_true_number_of_hmm_states() {
-    let emission = Gaussian::full(
-        2,
-        vec![0.0, 0.0, 5.0, 0.0, 0.0, 5.0],
-        vec![0.5, 0.1, 0.1, 0.5, 0.6, -0.2, -0.2, 0.4, 0.5, 0.0, 0.0, 0.7],
-    )
-    .unwrap();
-    let hmm = Hmm::new(
-        vec![0.6, 0.3, 0.1],
-        vec![0.9, 0.05, 0.05, 0.05, 0.9, 0.05, 0.1, 0.1, 0.8],
-        emission,
-    )
-    .unwrap();
-    let mut r = rng(17);
-    let seqs: Vec<Vec<f64>> = (0..8).map(|_| hmm.sample(150, &mut r).unwrap().0).collect();
-    let data = SequenceSet::new(&seqs, 2).unwrap();
-    let bw = BaumWelch::builder()
-        .init(HmmInit::KMeans)
-        .restarts(2)
-        .seed(0)
-        .build()
-        .unwrap();
-    let sel = select_hmm_states_bic(
-        &bw,
-        |s| {
-            Gaussian::standard(
-                CovarianceType::Full,
-                Shape {
-                    n_states: s,
-                    dim: 2,
-                },
-            )
-        },
-        &data,
-        1..=5,
-    )
-    .unwrap();
-    assert!(sel.failures.is_empty(), "{:?}", sel.failures);
-    assert_eq!(sel.best, 3, "BIC scores {:?}", sel.scores);
 }
 
 // ---------------------------------------------------------------------------

@@ -1,14 +1,15 @@
 //! More EM behaviour: restarts keep the run with the best final objective, the
 //! convergence test under a prior is on the penalised objective, the settings
-//! survive serde and bad ones are refused, and the generic EM fits a mixture
-//! of non-Gaussian (Poisson) components.
+//! survive serde and bad ones are refused, the generic EM fits a mixture
+//! of non-Gaussian (Poisson) components, and the default settings fit data
+//! with a constant column (their `1e-6` on the covariance diagonals).
 //!
 //! Every random draw comes from a seeded `ChaCha8Rng`.
 
 use phasekit_emission::{
     CovarianceType, Emission, Frames, Gaussian, Poisson, Regularisation, Shape,
 };
-use phasekit_gmm::{Em, Gmm, GmmFit, GmmInit};
+use phasekit_gmm::{default_regularisation, Em, Gmm, GmmFit, GmmInit, DEFAULT_ADDED_DIAGONAL};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
@@ -286,4 +287,44 @@ fn generic_em_fits_a_poisson_mixture() {
         .filter(|(p, l)| **p == map[**l])
         .count();
     assert!(agree as f64 > 0.9 * n as f64, "{agree} of {n}");
+}
+
+#[test]
+fn the_default_regularisation_fits_a_constant_column() {
+    // Three blobs in x, y; z never moves (a marker that is constant).
+    let frames: Vec<f64> = blobs(300, 7)
+        .chunks_exact(2)
+        .flat_map(|f| [f[0], f[1], 2.5])
+        .collect();
+    let frames = Frames::new(&frames, 3).unwrap();
+    let template = Gaussian::standard(
+        CovarianceType::Full,
+        Shape {
+            n_states: 3,
+            dim: 3,
+        },
+    )
+    .unwrap();
+    assert_eq!(Em::default().regularisation(), &default_regularisation());
+    assert_eq!(
+        default_regularisation(),
+        Regularisation::add_diagonal(DEFAULT_ADDED_DIAGONAL).unwrap()
+    );
+    let fitted = Em::default().fit(&template, frames).unwrap();
+    for k in 0..3 {
+        // The constant column's variance is exactly the added diagonal.
+        let v = fitted.model.components().covariance(k)[(2, 2)];
+        assert!(
+            (v - DEFAULT_ADDED_DIAGONAL).abs() < 1e-12,
+            "component {k}: {v}"
+        );
+    }
+    // Plain maximum likelihood refuses the singular covariance, in words.
+    let err = Em::builder()
+        .regularisation(Regularisation::none())
+        .build()
+        .unwrap()
+        .fit(&template, frames)
+        .unwrap_err();
+    assert!(err.to_string().contains("not positive definite"), "{err}");
 }

@@ -4,7 +4,10 @@ use phasekit_emission::EmissionError;
 use thiserror::Error;
 
 /// What went wrong when building, evaluating or fitting an HMM.
+///
+/// Non-exhaustive: new failure modes may be added without a breaking change.
 #[derive(Debug, Clone, PartialEq, Error)]
+#[non_exhaustive]
 pub enum HmmError {
     /// A parameter is outside its domain (names the parameter and the index).
     #[error("invalid parameter `{name}`: {reason}")]

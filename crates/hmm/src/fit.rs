@@ -34,6 +34,9 @@ pub enum Convergence {
 }
 
 /// Which parameters the M-step re-estimates (the others stay frozen).
+///
+/// A plain value: every combination of the three flags is valid, so the
+/// fields are public and there is nothing to validate.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Update {
     /// Re-estimate the initial distribution `π`.
@@ -55,6 +58,10 @@ impl Default for Update {
 }
 
 /// Expected sufficient statistics of an E-step over a set of sequences.
+///
+/// The fields are public so that statistics computed elsewhere (another
+/// process, a streaming accumulator) can be merged and maximised;
+/// [`ExpectedStatistics::merge`] and [`Hmm::maximise`] check their shapes.
 #[derive(Debug, Clone)]
 pub struct ExpectedStatistics<S> {
     /// `Σ_k log p(x^k)`.
@@ -335,15 +342,35 @@ impl TryFrom<BaumWelchRaw> for BaumWelch {
 #[derive(Debug, Clone)]
 pub struct BaumWelchBuilder(BaumWelch);
 
+/// The covariance regularisation of [`BaumWelch::default`] and of
+/// `phasekit_gmm::Em::default`: `1e-6` added to every covariance diagonal after
+/// each M-step, scikit-learn's default `reg_covar`.
+///
+/// It keeps a constant or collinear feature (a marker that never moves, a
+/// column that is a multiple of another) from making a covariance singular,
+/// and is negligible against the variances of data on a unit scale. It is in
+/// the data's units squared: on data whose variances are near `1e-6` or below
+/// it dominates them (standardise such data, or choose the regularisation).
+/// [`Regularisation::none`] gives plain maximum likelihood (hmmlearn's
+/// estimates, and the monotone EM of the textbook).
+pub fn default_regularisation() -> Regularisation {
+    // 1e-6 is finite and non-negative, which is all `add_diagonal` checks.
+    Regularisation::add_diagonal(DEFAULT_ADDED_DIAGONAL).unwrap_or_default()
+}
+
+/// The amount [`default_regularisation`] adds to every covariance diagonal.
+pub const DEFAULT_ADDED_DIAGONAL: f64 = 1e-6;
+
 impl Default for BaumWelch {
-    /// 100 iterations, tolerance `1e-4` on the total log-likelihood, no
-    /// regularisation, everything updated, k-bins initialisation, one run, seed 0.
+    /// 100 iterations, tolerance `1e-4` on the total log-likelihood,
+    /// [`default_regularisation`] (`1e-6` added to every covariance diagonal),
+    /// everything updated, k-bins initialisation, one run, seed 0.
     fn default() -> Self {
         BaumWelch {
             max_iter: 100,
             tol: 1e-4,
             convergence: Convergence::Total,
-            regularisation: Regularisation::default(),
+            regularisation: default_regularisation(),
             update: Update::default(),
             init: HmmInit::default(),
             restarts: 1,
@@ -440,8 +467,9 @@ impl BaumWelchBuilder {
     }
 }
 
-/// What a fit did.
+/// What a fit did (read-only: made by [`BaumWelch`], new fields may be added).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[non_exhaustive]
 pub struct HmmFitReport {
     /// Number of M-steps of the returned run.
     pub iterations: usize,
@@ -461,8 +489,9 @@ pub struct HmmFitReport {
     pub fit_seconds: f64,
 }
 
-/// A fitted model and its report.
+/// A fitted model and its report (made by [`BaumWelch`]).
 #[derive(Debug, Clone)]
+#[non_exhaustive]
 pub struct HmmFit<E: Emission> {
     /// The model whose log-likelihood was evaluated last.
     pub model: Hmm<E>,
@@ -476,9 +505,54 @@ impl BaumWelch {
         BaumWelchBuilder(BaumWelch::default())
     }
 
+    /// A builder starting from these settings (to change some of them).
+    pub fn to_builder(&self) -> BaumWelchBuilder {
+        BaumWelchBuilder(self.clone())
+    }
+
     /// The regularisation used.
     pub fn regularisation(&self) -> &Regularisation {
         &self.regularisation
+    }
+
+    /// At most this many M-steps.
+    pub fn max_iter(&self) -> usize {
+        self.max_iter
+    }
+
+    /// The convergence tolerance (on the [`BaumWelch::convergence`] scale).
+    pub fn tol(&self) -> f64 {
+        self.tol
+    }
+
+    /// The scale of the convergence test.
+    pub fn convergence(&self) -> Convergence {
+        self.convergence
+    }
+
+    /// Which parameters are re-estimated.
+    pub fn update(&self) -> Update {
+        self.update
+    }
+
+    /// The initialisation.
+    pub fn init(&self) -> HmmInit {
+        self.init
+    }
+
+    /// The number of runs.
+    pub fn restarts(&self) -> usize {
+        self.restarts
+    }
+
+    /// The seed of every random choice.
+    pub fn seed(&self) -> u64 {
+        self.seed
+    }
+
+    /// The size of the dedicated thread pool (`None`: rayon's global pool).
+    pub fn threads(&self) -> Option<usize> {
+        self.threads
     }
 
     fn scale(&self, data: &SequenceSet, ll: f64) -> f64 {

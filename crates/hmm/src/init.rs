@@ -168,7 +168,7 @@ pub fn initialise<E: Emission, R: Rng + ?Sized>(
                 }
                 v
             };
-            let weights: Vec<Vec<f64>> = data.lengths().map(|len| random_rows(len)).collect();
+            let weights: Vec<Vec<f64>> = data.lengths().map(&mut random_rows).collect();
             let start = random_rows(1);
             let transition = random_rows(s);
             let emission = emission_from_weights(template, data, &weights, reg, rng)?;

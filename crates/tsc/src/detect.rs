@@ -7,7 +7,7 @@
 //! transition flags, dilated by ±w frames; runs of flagged frames are the
 //! transition segments.
 
-use crate::error::Result;
+use crate::error::{Result, TscError};
 use phasekit_emission::{Emission, Frames, Marginal};
 use phasekit_gmm::Gmm;
 use phasekit_hmm::Hmm;
@@ -31,7 +31,12 @@ pub fn argmax(v: &[f64]) -> usize {
         .0
 }
 
-/// Selects the columns `dims` of every frame.
+/// Selects the columns `dims` of every frame, `T × |dims|` row-major.
+///
+/// # Panics
+///
+/// When a dim is not below the frames' dimension; check the dims first (as
+/// [`crate::Roles::check`] does), or use [`crate::human_frames`], which checks.
 pub fn select(seq: Frames<'_>, dims: &[usize]) -> Vec<f64> {
     seq.iter()
         .flat_map(|x| dims.iter().map(move |&d| x[d]))
@@ -108,10 +113,8 @@ impl<E: Emission> Labeller for FilterLabeller<'_, E> {
 /// `Disagreement::new(FilterLabeller::joint(λ), FilterLabeller::marginal(λ, human)?)`:
 /// the state believed from both partners and the one believed from the human alone.
 pub struct Disagreement<A: Labeller, B: Labeller> {
-    /// The first labelling.
-    pub a: A,
-    /// The second labelling.
-    pub b: B,
+    a: A,
+    b: B,
 }
 
 impl<A: Labeller, B: Labeller> Disagreement<A, B> {
@@ -120,9 +123,19 @@ impl<A: Labeller, B: Labeller> Disagreement<A, B> {
         Disagreement { a, b }
     }
 
+    /// The first labeller.
+    pub fn a(&self) -> &A {
+        &self.a
+    }
+
+    /// The second labeller.
+    pub fn b(&self) -> &B {
+        &self.b
+    }
+
     /// One flag per frame of `seq`.
     pub fn flags(&self, seq: Frames<'_>) -> Result<Vec<bool>> {
-        Ok(disagreement(&self.a.label(seq)?, &self.b.label(seq)?))
+        disagreement(&self.a.label(seq)?, &self.b.label(seq)?)
     }
 }
 
@@ -155,9 +168,20 @@ pub fn label_changes(labels: &[usize], min_run: usize) -> Vec<bool> {
     flags
 }
 
-/// Flags frames where two labellings disagree.
-pub fn disagreement(a: &[usize], b: &[usize]) -> Vec<bool> {
-    a.iter().zip(b).map(|(x, y)| x != y).collect()
+/// Flags frames where two labellings of the same frames disagree,
+/// `f_t = [a_t ≠ b_t]`; errors when they label different numbers of frames.
+pub fn disagreement(a: &[usize], b: &[usize]) -> Result<Vec<bool>> {
+    if a.len() != b.len() {
+        return Err(TscError::InvalidSetting {
+            name: "labels",
+            reason: format!(
+                "two labellings of the same frames are needed, got {} and {} labels",
+                a.len(),
+                b.len()
+            ),
+        });
+    }
+    Ok(a.iter().zip(b).map(|(x, y)| x != y).collect())
 }
 
 /// Widens every flagged frame to `±w` frames: `out_t = ∃ s: flags_s ∧ |t − s| ≤ w`.

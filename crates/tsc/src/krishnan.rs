@@ -17,8 +17,9 @@
 //!    transition clusters.
 
 use crate::detect::{label_changes, Labeller, MixtureLabeller};
-use crate::error::{Result, TscError};
-use crate::select::{check_range, mixture_components, Selector};
+use crate::error::{NoTransitionCause, Result, TscError};
+use crate::segmentation::Segmentation;
+use crate::select::{check_range, mixture_components, AutoCount, Selector};
 use phasekit_emission::{CovarianceType, Frames, Gaussian, Regularisation, SequenceSet, Shape};
 use phasekit_gmm::{select_mixture_bic, Em, Gmm};
 use serde::{Deserialize, Serialize};
@@ -28,17 +29,31 @@ use serde::{Deserialize, Serialize};
 /// grow as `(w·D)²`).
 pub const MAX_WINDOW: usize = 64;
 
-/// Settings of the optional time sub-clustering (step 5).
+/// Settings of the optional time sub-clustering (step 5), validated at
+/// construction ([`TimeClustering::new`]) and on deserialisation.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(try_from = "TimeClusteringRaw")]
 pub struct TimeClustering {
-    /// Sub-clusters per transition cluster, at most (BIC chooses in `1..=max_clusters`).
-    pub max_clusters: usize,
-    /// Variance added to the 1-D time Gaussians (`τ ∈ [0, 1]`; `1e-4` is a standard
-    /// deviation of 1 % of a demonstration's duration).
-    pub reg: f64,
+    max_clusters: usize,
+    reg: f64,
+}
+
+/// The serialised form of [`TimeClustering`], before validation.
+#[derive(Deserialize)]
+struct TimeClusteringRaw {
+    max_clusters: usize,
+    reg: f64,
+}
+
+impl TryFrom<TimeClusteringRaw> for TimeClustering {
+    type Error = TscError;
+    fn try_from(r: TimeClusteringRaw) -> Result<Self> {
+        TimeClustering::new(r.max_clusters, r.reg)
+    }
 }
 
 impl Default for TimeClustering {
+    /// At most 3 sub-clusters, variance floor `1e-4`.
     fn default() -> Self {
         TimeClustering {
             max_clusters: 3,
@@ -47,37 +62,96 @@ impl Default for TimeClustering {
     }
 }
 
-/// Settings of Krishnan-style TSC.
+impl TimeClustering {
+    /// At most `max_clusters ≥ 1` sub-clusters per transition cluster (BIC
+    /// chooses in `1..=max_clusters`), with the variance `reg > 0` added to the
+    /// 1-D time Gaussians (`τ ∈ [0, 1]`; `1e-4` is a standard deviation of 1 %
+    /// of a demonstration's duration).
+    pub fn new(max_clusters: usize, reg: f64) -> Result<Self> {
+        if max_clusters == 0 || !(reg.is_finite() && reg > 0.0) {
+            return Err(invalid(
+                "time_clusters",
+                format!(
+                    "time sub-clustering needs at least 1 sub-cluster and a finite variance floor > 0, got {max_clusters} and {reg}"
+                ),
+            ));
+        }
+        Ok(TimeClustering { max_clusters, reg })
+    }
+
+    /// Sub-clusters per transition cluster, at most.
+    pub fn max_clusters(&self) -> usize {
+        self.max_clusters
+    }
+
+    /// Variance added to the 1-D time Gaussians.
+    pub fn reg(&self) -> f64 {
+        self.reg
+    }
+}
+
+/// Settings of Krishnan-style TSC, validated once by
+/// [`KrishnanSettingsBuilder::build`] (and on deserialisation).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(try_from = "KrishnanSettingsRaw")]
 pub struct KrishnanSettings {
-    /// Components of the frame mixture (`None`: chosen by `selector` in `2..=max_components`;
-    /// one component has no label change).
-    pub components: Option<usize>,
-    /// Largest number of components an automatic choice may give.
-    pub max_components: usize,
-    /// How automatic counts are chosen (frame mixture and transition clusters).
+    components: Option<usize>,
+    max_components: usize,
+    selector: Selector,
+    window: usize,
+    min_run: usize,
+    transition_clusters: Option<usize>,
+    prune_fraction: f64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    time_clusters: Option<TimeClustering>,
+    reg: f64,
+    restarts: usize,
+    seed: u64,
+}
+
+/// The serialised form of [`KrishnanSettings`], before validation (the field
+/// names of model files written since version 1).
+#[derive(Deserialize)]
+struct KrishnanSettingsRaw {
+    components: Option<usize>,
+    max_components: usize,
     #[serde(default)]
-    pub selector: Selector,
-    /// Frames stacked into one feature vector (1: the frame alone), `1..=MAX_WINDOW`.
-    pub window: usize,
-    /// Label runs shorter than this are ignored as flips.
-    pub min_run: usize,
-    /// Clusters of transition states (`None`: chosen by `selector` in `1..=max_components`).
-    pub transition_clusters: Option<usize>,
-    /// `ρ`: keep a transition cluster only if at least this fraction of demonstrations has a transition in it.
-    pub prune_fraction: f64,
-    /// Sub-clustering of every kept cluster's transitions by normalised time (`None`: off).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub time_clusters: Option<TimeClustering>,
-    /// Covariance regularisation added after every M-step.
-    pub reg: f64,
-    /// Restarts of each mixture fit.
-    pub restarts: usize,
-    /// Seed.
-    pub seed: u64,
+    selector: Selector,
+    window: usize,
+    min_run: usize,
+    transition_clusters: Option<usize>,
+    prune_fraction: f64,
+    #[serde(default)]
+    time_clusters: Option<TimeClustering>,
+    reg: f64,
+    restarts: usize,
+    seed: u64,
+}
+
+impl TryFrom<KrishnanSettingsRaw> for KrishnanSettings {
+    type Error = TscError;
+    fn try_from(r: KrishnanSettingsRaw) -> Result<Self> {
+        KrishnanSettingsBuilder(KrishnanSettings {
+            components: r.components,
+            max_components: r.max_components,
+            selector: r.selector,
+            window: r.window,
+            min_run: r.min_run,
+            transition_clusters: r.transition_clusters,
+            prune_fraction: r.prune_fraction,
+            time_clusters: r.time_clusters,
+            reg: r.reg,
+            restarts: r.restarts,
+            seed: r.seed,
+        })
+        .build()
+    }
 }
 
 impl Default for KrishnanSettings {
+    /// Automatic counts by BIC up to 8, the frame alone (window 1), label runs
+    /// of at least 2 frames, `ρ = 0.5`, no time sub-clustering, `reg = 1e-2`,
+    /// 3 runs per mixture fit, seed 0.
     fn default() -> Self {
         KrishnanSettings {
             components: None,
@@ -95,28 +169,137 @@ impl Default for KrishnanSettings {
     }
 }
 
-/// Per-demonstration output of a segmentation.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct Segmentation {
-    /// State (component) of every frame.
-    pub labels: Vec<usize>,
-    /// Frames flagged as transitions, in order.
-    pub transitions: Vec<usize>,
-    /// Cluster of every transition frame (`None` if its cluster was pruned or there are none).
-    pub clusters: Vec<Option<usize>>,
+/// Builder of [`KrishnanSettings`]; [`KrishnanSettingsBuilder::build`] validates once.
+#[derive(Debug, Clone)]
+pub struct KrishnanSettingsBuilder(KrishnanSettings);
+
+impl KrishnanSettingsBuilder {
+    /// Components of the frame mixture (`None`: chosen by the selector in
+    /// `2..=max_components`; one component has no label change).
+    pub fn components(mut self, k: Option<usize>) -> Self {
+        self.0.components = k;
+        self
+    }
+    /// Largest number of components (and transition clusters) an automatic choice may give.
+    pub fn max_components(mut self, k: usize) -> Self {
+        self.0.max_components = k;
+        self
+    }
+    /// How automatic counts are chosen (frame mixture and transition clusters).
+    pub fn selector(mut self, s: Selector) -> Self {
+        self.0.selector = s;
+        self
+    }
+    /// Frames stacked into one feature vector, `1..=MAX_WINDOW` (1: the frame alone).
+    pub fn window(mut self, w: usize) -> Self {
+        self.0.window = w;
+        self
+    }
+    /// Label runs shorter than this are ignored as flips.
+    pub fn min_run(mut self, n: usize) -> Self {
+        self.0.min_run = n;
+        self
+    }
+    /// Clusters of transition states (`None`: chosen by the selector in `1..=max_components`).
+    pub fn transition_clusters(mut self, k: Option<usize>) -> Self {
+        self.0.transition_clusters = k;
+        self
+    }
+    /// `ρ ∈ [0, 1]`: keep a transition cluster only if at least this fraction of
+    /// demonstrations has a transition in it.
+    pub fn prune_fraction(mut self, rho: f64) -> Self {
+        self.0.prune_fraction = rho;
+        self
+    }
+    /// Sub-clustering of every kept cluster's transitions by normalised time (`None`: off).
+    pub fn time_clusters(mut self, tc: Option<TimeClustering>) -> Self {
+        self.0.time_clusters = tc;
+        self
+    }
+    /// Covariance regularisation `r ≥ 0` added after every M-step.
+    pub fn reg(mut self, reg: f64) -> Self {
+        self.0.reg = reg;
+        self
+    }
+    /// Runs (k-means++ seeds) of each mixture fit, at least 1.
+    pub fn restarts(mut self, n: usize) -> Self {
+        self.0.restarts = n;
+        self
+    }
+    /// Seed of every mixture fit.
+    pub fn seed(mut self, seed: u64) -> Self {
+        self.0.seed = seed;
+        self
+    }
+    /// Checks every setting (not the data): window in `1..=MAX_WINDOW`, `ρ ∈ [0, 1]`,
+    /// counts ≥ 1, `max_components ≥ 2` when the frame mixture's count is
+    /// automatic, finite non-negative regularisation, at least one run.
+    pub fn build(self) -> Result<KrishnanSettings> {
+        let s = self.0;
+        if s.window == 0 || s.window > MAX_WINDOW {
+            return Err(invalid(
+                "window",
+                format!(
+                    "gmm-tsc stacks `window` frames into one vector: it must lie in 1..={MAX_WINDOW} \
+                     (a windowed dimension of at most {MAX_WINDOW}× the frame's), got {}",
+                    s.window
+                ),
+            ));
+        }
+        if !(0.0..=1.0).contains(&s.prune_fraction) {
+            return Err(invalid(
+                "rho",
+                format!(
+                    "the pruning fraction ρ must lie in [0, 1], got {}",
+                    s.prune_fraction
+                ),
+            ));
+        }
+        if s.components == Some(0) || s.transition_clusters == Some(0) {
+            return Err(invalid(
+                "components",
+                "a mixture needs at least one component".into(),
+            ));
+        }
+        if s.components.is_none() {
+            check_range("max_states", &(2..=s.max_components))?;
+        }
+        if s.transition_clusters.is_none() {
+            check_range("max_states", &(1..=s.max_components))?;
+        }
+        if !(s.reg.is_finite() && s.reg >= 0.0) {
+            return Err(invalid(
+                "reg",
+                format!("must be a finite number ≥ 0, got {}", s.reg),
+            ));
+        }
+        if s.restarts == 0 {
+            return Err(invalid("restarts", "at least one run is needed".into()));
+        }
+        Ok(s)
+    }
 }
 
-/// The time sub-clusters of one kept transition cluster.
+/// The time sub-clusters of one kept transition cluster (made by
+/// [`KrishnanSettings::fit`]; checked with the model that holds them).
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct TimeSubclusters {
-    /// 1-D mixture over the normalised time `τ` of the cluster's training transitions
-    /// (`None` when it had a single transition: one sub-cluster).
-    pub mixture: Option<Gmm>,
-    /// Sub-clusters kept after pruning.
-    pub kept: Vec<usize>,
+    mixture: Option<Gmm>,
+    kept: Vec<usize>,
 }
 
 impl TimeSubclusters {
+    /// 1-D mixture over the normalised time `τ` of the cluster's training
+    /// transitions (`None` when it had a single transition: one sub-cluster).
+    pub fn mixture(&self) -> Option<&Gmm> {
+        self.mixture.as_ref()
+    }
+
+    /// Sub-clusters kept after pruning.
+    pub fn kept(&self) -> &[usize] {
+        &self.kept
+    }
+
     /// Sub-cluster of a transition at normalised time `tau`.
     fn assign(&self, tau: f64) -> Result<usize> {
         Ok(match &self.mixture {
@@ -126,22 +309,56 @@ impl TimeSubclusters {
     }
 }
 
-/// A fitted Krishnan-style TSC.
+/// A fitted Krishnan-style TSC (made by [`KrishnanSettings::fit`]; its parts
+/// are checked to agree on deserialisation).
 #[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(try_from = "KrishnanTscRaw")]
 pub struct KrishnanTsc {
-    /// Mixture over (windowed) frames.
-    pub mixture: Gmm,
-    /// Mixture over transition states (un-windowed frames).
-    pub transition_mixture: Gmm,
-    /// Transition clusters kept after pruning.
-    pub kept: Vec<usize>,
-    /// Frames per window.
-    pub window: usize,
-    /// Minimum label run.
-    pub min_run: usize,
-    /// Time sub-clusters of every kept cluster (same order as `kept`); empty when off.
+    mixture: Gmm,
+    transition_mixture: Gmm,
+    kept: Vec<usize>,
+    window: usize,
+    min_run: usize,
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub time_clusters: Vec<TimeSubclusters>,
+    time_clusters: Vec<TimeSubclusters>,
+}
+
+/// The serialised form of [`KrishnanTsc`], before validation.
+#[derive(Deserialize)]
+struct KrishnanTscRaw {
+    mixture: Gmm,
+    transition_mixture: Gmm,
+    kept: Vec<usize>,
+    window: usize,
+    min_run: usize,
+    #[serde(default)]
+    time_clusters: Vec<TimeSubclusters>,
+}
+
+impl TryFrom<KrishnanTscRaw> for KrishnanTsc {
+    type Error = TscError;
+    fn try_from(r: KrishnanTscRaw) -> Result<Self> {
+        let tsc = KrishnanTsc {
+            mixture: r.mixture,
+            transition_mixture: r.transition_mixture,
+            kept: r.kept,
+            window: r.window,
+            min_run: r.min_run,
+            time_clusters: r.time_clusters,
+        };
+        tsc.check()?;
+        Ok(tsc)
+    }
+}
+
+/// How [`KrishnanSettings::fit`] chose its automatic counts.
+#[derive(Debug, Clone, PartialEq)]
+#[non_exhaustive]
+pub struct KrishnanReport {
+    /// The frame mixture's count, when automatic.
+    pub frame_components: Option<AutoCount>,
+    /// The number of transition clusters, when automatic.
+    pub transition_clusters: Option<AutoCount>,
 }
 
 /// Stacks `w` consecutive frames, oldest first: row `t` is
@@ -172,76 +389,89 @@ fn invalid(name: &'static str, reason: String) -> TscError {
 }
 
 impl KrishnanSettings {
-    /// Checks every setting (not the data): window in `1..=MAX_WINDOW`, `ρ ∈ [0, 1]`,
-    /// counts ≥ 1, `max_components ≥ 2` when a count is automatic, finite non-negative
-    /// regularisation, and a usable time sub-clustering.
-    pub fn validate(&self) -> Result<()> {
-        if self.window == 0 || self.window > MAX_WINDOW {
-            return Err(invalid(
-                "window",
-                format!(
-                    "gmm-tsc stacks `window` frames into one vector: it must lie in 1..={MAX_WINDOW} \
-                     (a windowed dimension of at most {MAX_WINDOW}× the frame's), got {}",
-                    self.window
-                ),
-            ));
-        }
-        if !(0.0..=1.0).contains(&self.prune_fraction) {
-            return Err(invalid(
-                "rho",
-                format!(
-                    "the pruning fraction ρ must lie in [0, 1], got {}",
-                    self.prune_fraction
-                ),
-            ));
-        }
-        if self.components == Some(0) || self.transition_clusters == Some(0) {
-            return Err(invalid(
-                "components",
-                "a mixture needs at least one component".into(),
-            ));
-        }
-        if self.components.is_none() {
-            check_range("max-states", &(2..=self.max_components))?;
-        }
-        if self.transition_clusters.is_none() {
-            check_range("max-states", &(1..=self.max_components))?;
-        }
-        if !(self.reg.is_finite() && self.reg >= 0.0) {
-            return Err(invalid(
-                "reg",
-                format!("must be a finite number ≥ 0, got {}", self.reg),
-            ));
-        }
-        if let Some(tc) = &self.time_clusters {
-            if tc.max_clusters == 0 || !(tc.reg.is_finite() && tc.reg > 0.0) {
-                return Err(invalid(
-                    "time-clusters",
-                    format!(
-                        "time sub-clustering needs at least 1 sub-cluster and a finite variance floor > 0, got {} and {}",
-                        tc.max_clusters, tc.reg
-                    ),
-                ));
-            }
-        }
-        Ok(())
+    /// A builder starting from [`KrishnanSettings::default`].
+    pub fn builder() -> KrishnanSettingsBuilder {
+        KrishnanSettingsBuilder(KrishnanSettings::default())
+    }
+
+    /// A builder starting from these settings (to change some of them).
+    pub fn to_builder(&self) -> KrishnanSettingsBuilder {
+        KrishnanSettingsBuilder(self.clone())
+    }
+
+    /// Components of the frame mixture (`None`: automatic).
+    pub fn components(&self) -> Option<usize> {
+        self.components
+    }
+    /// Largest number an automatic count may give.
+    pub fn max_components(&self) -> usize {
+        self.max_components
+    }
+    /// How automatic counts are chosen.
+    pub fn selector(&self) -> Selector {
+        self.selector
+    }
+    /// Frames stacked into one feature vector.
+    pub fn window(&self) -> usize {
+        self.window
+    }
+    /// Label runs shorter than this are ignored as flips.
+    pub fn min_run(&self) -> usize {
+        self.min_run
+    }
+    /// Clusters of transition states (`None`: automatic).
+    pub fn transition_clusters(&self) -> Option<usize> {
+        self.transition_clusters
+    }
+    /// `ρ`, the fraction of demonstrations a kept transition cluster needs.
+    pub fn prune_fraction(&self) -> f64 {
+        self.prune_fraction
+    }
+    /// The time sub-clustering, if on.
+    pub fn time_clusters(&self) -> Option<&TimeClustering> {
+        self.time_clusters.as_ref()
+    }
+    /// Covariance regularisation added after every M-step.
+    pub fn reg(&self) -> f64 {
+        self.reg
+    }
+    /// Runs of each mixture fit.
+    pub fn restarts(&self) -> usize {
+        self.restarts
+    }
+    /// Seed of every mixture fit.
+    pub fn seed(&self) -> u64 {
+        self.seed
     }
 
     fn em(&self) -> Result<Em> {
         Ok(Em::builder()
             .regularisation(Regularisation::add_diagonal(self.reg)?)
-            .restarts(self.restarts.max(1))
+            .restarts(self.restarts)
             .seed(self.seed)
             .build()?)
     }
 
-    fn mixture(&self, frames: Frames<'_>, k: Option<usize>, min_auto: usize) -> Result<Gmm> {
+    /// A mixture of `k` components, or of the number chosen automatically in
+    /// `min_auto..=max_components` (and how it was chosen).
+    fn mixture(
+        &self,
+        frames: Frames<'_>,
+        k: Option<usize>,
+        min_auto: usize,
+    ) -> Result<(Gmm, Option<AutoCount>)> {
         let em = self.em()?;
-        let k = match k {
-            Some(k) => k,
-            None => mixture_components(self.selector, &em, frames, min_auto..=self.max_components)?,
+        let auto = match k {
+            Some(_) => None,
+            None => Some(mixture_components(
+                self.selector,
+                &em,
+                frames,
+                min_auto..=self.max_components,
+            )?),
         };
-        Ok(em
+        let k = auto.as_ref().map_or(k.unwrap_or(1), |a| a.count);
+        let model = em
             .fit(
                 &Gaussian::standard(
                     CovarianceType::Full,
@@ -252,12 +482,13 @@ impl KrishnanSettings {
                 )?,
                 frames,
             )?
-            .model)
+            .model;
+        Ok((model, auto))
     }
 
-    /// Fits the frame mixture and the transition clusters on demonstrations.
-    pub fn fit(&self, data: &SequenceSet) -> Result<KrishnanTsc> {
-        self.validate()?;
+    /// Fits the frame mixture and the transition clusters on demonstrations,
+    /// and reports how automatic counts were chosen.
+    pub fn fit(&self, data: &SequenceSet) -> Result<(KrishnanTsc, KrishnanReport)> {
         if let Some((k, shortest)) = data.iter().map(|s| s.len()).enumerate().min_by_key(|x| x.1) {
             if self.window > shortest {
                 return Err(invalid(
@@ -272,7 +503,8 @@ impl KrishnanSettings {
         let d = data.dim();
         let stacked: Vec<Vec<f64>> = data.iter().map(|s| windowed(s, self.window)).collect();
         let all: Vec<f64> = stacked.concat();
-        let mixture = self.mixture(Frames::new(&all, d * self.window)?, self.components, 2)?;
+        let (mixture, frame_components) =
+            self.mixture(Frames::new(&all, d * self.window)?, self.components, 2)?;
         let labeller = MixtureLabeller(&mixture);
         let mut points = Vec::new();
         let mut owner = Vec::new();
@@ -288,9 +520,14 @@ impl KrishnanSettings {
             }
         }
         if owner.is_empty() {
-            return Err(TscError::NoTransitions { min_len: 1 });
+            return Err(TscError::NoTransitions {
+                min_run: self.min_run,
+                cause: NoTransitionCause::NoLabelChange {
+                    components: mixture.n_components(),
+                },
+            });
         }
-        let transition_mixture = self.mixture(
+        let (transition_mixture, transition_clusters) = self.mixture(
             Frames::new(&points, d)?,
             self.transition_clusters.map(|k| k.min(owner.len())),
             1,
@@ -318,14 +555,20 @@ impl KrishnanSettings {
                 })
                 .collect::<Result<_>>()?,
         };
-        Ok(KrishnanTsc {
-            mixture,
-            transition_mixture,
-            kept,
-            window: self.window,
-            min_run: self.min_run,
-            time_clusters,
-        })
+        Ok((
+            KrishnanTsc {
+                mixture,
+                transition_mixture,
+                kept,
+                window: self.window,
+                min_run: self.min_run,
+                time_clusters,
+            },
+            KrishnanReport {
+                frame_components,
+                transition_clusters,
+            },
+        ))
     }
 
     /// Sub-clusters the transitions `members` of one cluster by their normalised time.
@@ -347,7 +590,7 @@ impl KrishnanSettings {
         }
         let em = Em::builder()
             .regularisation(Regularisation::add_diagonal(tc.reg)?)
-            .restarts(self.restarts.max(1))
+            .restarts(self.restarts)
             .seed(self.seed)
             .build()?;
         let frames = Frames::new(&tau, 1)?;
@@ -406,10 +649,40 @@ impl KrishnanTsc {
             .collect()
     }
 
+    /// Mixture over (windowed) frames.
+    pub fn mixture(&self) -> &Gmm {
+        &self.mixture
+    }
+    /// Mixture over transition states (un-windowed frames).
+    pub fn transition_mixture(&self) -> &Gmm {
+        &self.transition_mixture
+    }
+    /// Transition clusters kept after pruning (components of the transition mixture).
+    pub fn kept(&self) -> &[usize] {
+        &self.kept
+    }
+    /// Frames per window.
+    pub fn window(&self) -> usize {
+        self.window
+    }
+    /// Minimum label run.
+    pub fn min_run(&self) -> usize {
+        self.min_run
+    }
+    /// Time sub-clusters of every kept cluster (same order as [`KrishnanTsc::kept`]); empty when off.
+    pub fn time_clusters(&self) -> &[TimeSubclusters] {
+        &self.time_clusters
+    }
+
     /// Checks that the parts agree: kept clusters exist, time sub-clusters (if any)
     /// match the kept clusters and are 1-D.
-    pub fn validate(&self) -> Result<()> {
-        let bad = |reason: String| Err(invalid("gmm-tsc model", reason));
+    fn check(&self) -> Result<()> {
+        let bad = |reason: String| {
+            Err(TscError::InvalidModel {
+                model: "gmm-tsc model",
+                reason,
+            })
+        };
         let kc = self.transition_mixture.n_components();
         if self.kept.iter().any(|&c| c >= kc) {
             return bad(format!(
@@ -480,6 +753,7 @@ impl KrishnanTsc {
             labels,
             transitions,
             clusters,
+            base_labels: None,
         })
     }
 }

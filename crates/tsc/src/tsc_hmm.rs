@@ -1,5 +1,5 @@
-//! The seed paper's HMM and TSC-HMM, and the compositions of a base HMM `λ`
-//! with a transition-state HMM `λ_T`.
+//! The seed paper's TSC-HMM, and the compositions of a base HMM `λ` with a
+//! transition-state HMM `λ_T`.
 //!
 //! Algorithm 1 of Hahne et al. (HRI'24): train `λ` on joint human+robot frames;
 //! on every training demonstration flag the frames where the state believed from
@@ -12,201 +12,14 @@
 //! [`Composition`]s below are the candidates measured in the ablation.
 
 use crate::detect::{dilate, runs, select, worst_fraction, Disagreement, FilterLabeller};
-use crate::error::{Result, TscError};
-use crate::select::{check_range, Selector};
-use phasekit_emission::{
-    CovarianceType, Emission, Frames, Gaussian, Regularisation, SequenceSet, Shape,
-};
-use phasekit_gmm::{select_hmm_states_bic, select_hmm_states_gmeans, GMeans, Selection};
+use crate::error::{NoTransitionCause, Result, TscError};
+use crate::hmm_settings::{AutoStatesReport, HmmSettings};
+use crate::roles::Roles;
+use phasekit_emission::{Emission, Frames, Gaussian, Regularisation, SequenceSet};
 use phasekit_gmr::HmmRegression;
-use phasekit_hmm::{BaumWelch, Convergence, Hmm, HmmFitReport, HmmInit, Update};
+use phasekit_hmm::{BaumWelch, Convergence, Hmm, HmmFitReport, Update};
 use serde::{Deserialize, Serialize};
-
-/// Which dims of a joint frame are the human's (observed at test time) and the robot's (predicted).
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
-pub struct Roles {
-    /// The human's dims (inputs).
-    pub human: Vec<usize>,
-    /// The robot's dims (outputs).
-    pub robot: Vec<usize>,
-}
-
-impl Roles {
-    /// Checks that the roles are disjoint, non-empty and within `dim`.
-    pub fn check(&self, dim: usize) -> Result<()> {
-        phasekit_gmr::check_io(&self.human, &self.robot, dim)?;
-        Ok(())
-    }
-}
-
-/// Settings of one HMM fit, as in the paper-compatible protocol by default.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct HmmSettings {
-    /// Number of states.
-    pub states: usize,
-    /// `r` added to every covariance diagonal at initialisation and after every M-step
-    /// (in the data's units squared: `1e-2` on data in metres is (10 cm)²).
-    pub reg: f64,
-    /// At most this many M-steps.
-    pub max_iter: usize,
-    /// Stop when the gain of the mean log-likelihood per sequence is below this.
-    pub tol: f64,
-    /// Runs from different initialisations (the first from k-bins, then k-means++).
-    pub restarts: usize,
-    /// Seed of the random initialisations.
-    pub seed: u64,
-    /// Covariance structure of the emissions.
-    pub covariance: CovarianceType,
-    /// Choose the number of states automatically (then `states` is not used).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub auto_states: Option<AutoStates>,
-}
-
-/// An automatic choice of the number of HMM states in `min..=max`: by BIC, the
-/// count whose HMM, fitted by the same Baum-Welch settings, has the lowest
-/// `BIC(S) = −2 log p(O | λ̂_S) + p_S log N` (`p_S` free parameters, `N` frames;
-/// `phasekit_gmm::select_hmm_states_bic`); by G-means, the number of Gaussian
-/// clusters G-means finds in the pooled frames (`phasekit_gmm::gmeans`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-pub struct AutoStates {
-    /// Fewest states tried.
-    pub min: usize,
-    /// Most states tried.
-    pub max: usize,
-    /// How the count is chosen.
-    #[serde(default)]
-    pub selector: Selector,
-}
-
-impl AutoStates {
-    /// BIC over `min..=max` states.
-    pub fn bic(min: usize, max: usize) -> Self {
-        AutoStates {
-            min,
-            max,
-            selector: Selector::Bic,
-        }
-    }
-}
-
-impl HmmSettings {
-    /// The paper-compatible setting: `states` full-covariance states, `reg = 1e-2`,
-    /// 40 iterations, tolerance `1e-4` on the mean log-likelihood per sequence, one k-bins run.
-    pub fn paper(states: usize) -> Self {
-        HmmSettings {
-            states,
-            reg: 1e-2,
-            max_iter: 40,
-            tol: 1e-4,
-            restarts: 1,
-            seed: 0,
-            covariance: CovarianceType::Full,
-            auto_states: None,
-        }
-    }
-
-    /// Checks the settings: at least one state (or a valid automatic range), finite
-    /// non-negative `reg` and `tol`, at least one iteration and one run.
-    pub fn validate(&self) -> Result<()> {
-        let bad = |name, reason: String| Err(TscError::InvalidSetting { name, reason });
-        match self.auto_states {
-            None if self.states == 0 => {
-                return bad("states", "at least one state is needed".into());
-            }
-            None => {}
-            Some(a) => check_range("max-states", &(a.min..=a.max))?,
-        }
-        if !(self.reg.is_finite() && self.reg >= 0.0) {
-            return bad(
-                "reg",
-                format!("must be a finite number ≥ 0, got {}", self.reg),
-            );
-        }
-        if !(self.tol.is_finite() && self.tol >= 0.0) {
-            return bad(
-                "tol",
-                format!("must be a finite number ≥ 0, got {}", self.tol),
-            );
-        }
-        if self.max_iter == 0 || self.restarts == 0 {
-            return bad(
-                "max-iter/restarts",
-                "at least one iteration and one run are needed".into(),
-            );
-        }
-        Ok(())
-    }
-
-    /// The checked Baum-Welch settings.
-    pub fn baum_welch(&self) -> Result<BaumWelch> {
-        Ok(BaumWelch::builder()
-            .max_iter(self.max_iter)
-            .tol(self.tol)
-            .convergence(Convergence::MeanPerSequence)
-            .regularisation(Regularisation::add_diagonal(self.reg)?)
-            .init(HmmInit::KBins { smoothing: 0.01 })
-            .restarts(self.restarts)
-            .seed(self.seed)
-            .build()?)
-    }
-
-    /// Fits an HMM with these settings to `data`.
-    pub fn fit(&self, data: &SequenceSet) -> Result<(Hmm<Gaussian>, HmmFitReport)> {
-        let (hmm, report, _) = self.fit_selected(data)?;
-        Ok((hmm, report))
-    }
-
-    /// Fits an HMM with these settings to `data`; with `auto_states`, first chooses
-    /// the number of states and returns the scores of every candidate as well.
-    pub fn fit_selected(
-        &self,
-        data: &SequenceSet,
-    ) -> Result<(Hmm<Gaussian>, HmmFitReport, Option<Selection>)> {
-        self.validate()?;
-        let bw = self.baum_welch()?;
-        let template = |k| {
-            Gaussian::standard(
-                self.covariance,
-                Shape {
-                    n_states: k,
-                    dim: data.dim(),
-                },
-            )
-        };
-        let (states, selection) = match self.auto_states {
-            None => (self.states, None),
-            Some(a) => {
-                // A demonstration shorter than the number of states cannot be k-binned:
-                // candidates stop at the shortest demonstration's length.
-                let shortest = data.iter().map(|s| s.len()).min().unwrap_or(0);
-                let hi = a.max.min(shortest.max(1));
-                let lo = a.min.min(hi);
-                match a.selector {
-                    Selector::Bic => {
-                        let sel = select_hmm_states_bic(&bw, template, data, lo..=hi)?;
-                        (sel.best, Some(sel))
-                    }
-                    // G-means on the pooled frames (deterministic: its splits start
-                    // along the principal axis), clamped to the range.
-                    Selector::GMeans => {
-                        let g = select_hmm_states_gmeans(
-                            &bw,
-                            template,
-                            data,
-                            GMeans::default(),
-                            lo..=hi,
-                        )?;
-                        return Ok((g.fitted.model, g.fitted.report, Some(g.selection)));
-                    }
-                }
-            }
-        };
-        // Refitting the chosen count repeats the selection's fit exactly (same
-        // initialisation and seed), so the model is the one that was scored.
-        let fitted = bw.fit(&template(states)?, data)?;
-        Ok((fitted.model, fitted.report, selection))
-    }
-}
+use std::fmt;
 
 /// How transition frames are found on the training demonstrations.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -214,7 +27,7 @@ pub enum Detector {
     /// The paper: the human-only and the joint filtered argmax states disagree.
     Disagreement,
     /// The frames where the base model's human-only prediction of the robot is worst
-    /// (this fraction of all training frames).
+    /// (this fraction of all training frames, in `(0, 1]`).
     WorstPrediction {
         /// Fraction of frames flagged, in (0, 1].
         fraction: f64,
@@ -234,35 +47,125 @@ pub enum Composition {
     Gated,
 }
 
-/// Settings of a TSC-HMM.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct TscSettings {
-    /// The base HMM `λ`.
-    pub base: HmmSettings,
-    /// States of `λ_T`.
-    pub tsc_states: usize,
-    /// Dilation `±w` of the flagged frames.
-    pub window: usize,
-    /// Runs shorter than this are dropped.
-    pub min_run: usize,
-    /// How transition frames are found.
-    pub detector: Detector,
-    /// How `λ` and `λ_T` predict together.
-    pub composition: Composition,
+impl fmt::Display for Composition {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Composition::Union => "union",
+            Composition::UnionFrozen => "union with frozen emissions",
+            Composition::Gated => "likelihood gate",
+        })
+    }
 }
 
-impl TscSettings {
-    /// Checks the settings: the base HMM's, at least one transition state, and a
-    /// detector fraction in `(0, 1]`.
-    pub fn validate(&self) -> Result<()> {
-        self.base.validate()?;
-        if self.tsc_states == 0 {
+/// Settings of a TSC-HMM; [`TscSettings::paper`] is the paper's method.
+///
+/// Validated once, by [`TscSettingsBuilder::build`] (and on deserialisation).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(try_from = "TscSettingsRaw")]
+pub struct TscSettings {
+    base: HmmSettings,
+    tsc_states: usize,
+    window: usize,
+    min_run: usize,
+    detector: Detector,
+    composition: Composition,
+}
+
+/// The serialised form of [`TscSettings`], before validation.
+#[derive(Deserialize)]
+struct TscSettingsRaw {
+    base: HmmSettings,
+    tsc_states: usize,
+    window: usize,
+    min_run: usize,
+    detector: Detector,
+    composition: Composition,
+}
+
+impl TryFrom<TscSettingsRaw> for TscSettings {
+    type Error = TscError;
+    fn try_from(r: TscSettingsRaw) -> Result<Self> {
+        TscSettingsBuilder(TscSettings {
+            base: r.base,
+            tsc_states: r.tsc_states,
+            window: r.window,
+            min_run: r.min_run,
+            detector: r.detector,
+            composition: r.composition,
+        })
+        .build()
+    }
+}
+
+impl Default for TscSettings {
+    /// The paper's method: `λ` with 4 states ([`HmmSettings::default`]), `λ_T`
+    /// with 3, window ±2, runs of at least 2 frames, the disagreement detector,
+    /// the union composition.
+    fn default() -> Self {
+        TscSettings {
+            base: HmmSettings::default(),
+            tsc_states: 3,
+            window: 2,
+            min_run: 2,
+            detector: Detector::Disagreement,
+            composition: Composition::Union,
+        }
+    }
+}
+
+/// Builder of [`TscSettings`]; [`TscSettingsBuilder::build`] validates once.
+#[derive(Debug, Clone)]
+pub struct TscSettingsBuilder(TscSettings);
+
+impl TscSettingsBuilder {
+    /// The base HMM `λ` (also the settings of `λ_T` and the union, but for the states).
+    pub fn base(mut self, base: HmmSettings) -> Self {
+        self.0.base = base;
+        self
+    }
+    /// `n ≥ 1` states of `λ_T`.
+    pub fn tsc_states(mut self, n: usize) -> Self {
+        self.0.tsc_states = n;
+        self
+    }
+    /// Dilation `±w` of the flagged frames (0: none).
+    pub fn window(mut self, w: usize) -> Self {
+        self.0.window = w;
+        self
+    }
+    /// Runs of flagged frames shorter than `n ≥ 1` are dropped.
+    pub fn min_run(mut self, n: usize) -> Self {
+        self.0.min_run = n;
+        self
+    }
+    /// How transition frames are found.
+    pub fn detector(mut self, d: Detector) -> Self {
+        self.0.detector = d;
+        self
+    }
+    /// How `λ` and `λ_T` predict together.
+    pub fn composition(mut self, c: Composition) -> Self {
+        self.0.composition = c;
+        self
+    }
+    /// Validates the settings: at least one transition state, runs of at least
+    /// one frame, and a detector fraction in `(0, 1]` (the base settings were
+    /// validated when built).
+    pub fn build(self) -> Result<TscSettings> {
+        let s = self.0;
+        if s.tsc_states == 0 {
             return Err(TscError::InvalidSetting {
-                name: "tsc-states",
-                reason: "the transition HMM needs at least one state (tsc-states=0 or auto chooses the transition clusters of gmm-tsc only)".into(),
+                name: "tsc_states",
+                reason: "the transition HMM needs at least one state (0, i.e. automatic, chooses the transition clusters of gmm-tsc only)".into(),
             });
         }
-        if let Detector::WorstPrediction { fraction } = self.detector {
+        if s.min_run == 0 {
+            return Err(TscError::InvalidSetting {
+                name: "min_run",
+                reason: "a transition segment has at least one frame".into(),
+            });
+        }
+        if let Detector::WorstPrediction { fraction } = s.detector {
             if !(fraction > 0.0 && fraction <= 1.0) {
                 return Err(TscError::InvalidSetting {
                     name: "fraction",
@@ -270,19 +173,53 @@ impl TscSettings {
                 });
             }
         }
-        Ok(())
+        Ok(s)
+    }
+}
+
+impl TscSettings {
+    /// A builder starting from [`TscSettings::default`] (the paper's method).
+    pub fn builder() -> TscSettingsBuilder {
+        TscSettingsBuilder(TscSettings::default())
     }
 
-    /// The paper's method with 4 + 3 states, window `w`, and the given composition.
+    /// A builder starting from these settings (to change some of them).
+    pub fn to_builder(&self) -> TscSettingsBuilder {
+        TscSettingsBuilder(self.clone())
+    }
+
+    /// The paper's method with 4 + 3 states, window `±window`, and the given composition.
     pub fn paper(window: usize, composition: Composition) -> Self {
         TscSettings {
-            base: HmmSettings::paper(4),
-            tsc_states: 3,
             window,
-            min_run: 2,
-            detector: Detector::Disagreement,
             composition,
+            ..TscSettings::default()
         }
+    }
+
+    /// The base HMM `λ`'s settings.
+    pub fn base(&self) -> &HmmSettings {
+        &self.base
+    }
+    /// States of `λ_T`.
+    pub fn tsc_states(&self) -> usize {
+        self.tsc_states
+    }
+    /// Dilation `±w` of the flagged frames.
+    pub fn window(&self) -> usize {
+        self.window
+    }
+    /// Shortest run of flagged frames kept as a transition segment.
+    pub fn min_run(&self) -> usize {
+        self.min_run
+    }
+    /// How transition frames are found.
+    pub fn detector(&self) -> Detector {
+        self.detector
+    }
+    /// How `λ` and `λ_T` predict together.
+    pub fn composition(&self) -> Composition {
+        self.composition
     }
 }
 
@@ -298,9 +235,10 @@ pub fn disagreement_flags(
     roles: &Roles,
     data: &SequenceSet,
 ) -> Result<TransitionFlags> {
+    roles.check(data.dim())?;
     let detector = Disagreement::new(
         FilterLabeller::joint(hmm),
-        FilterLabeller::marginal(hmm, &roles.human)?,
+        FilterLabeller::marginal(hmm, roles.human())?,
     );
     data.iter().map(|seq| detector.flags(seq)).collect()
 }
@@ -312,12 +250,13 @@ pub fn prediction_errors(
     roles: &Roles,
     data: &SequenceSet,
 ) -> Result<Vec<Vec<f64>>> {
-    let gmr = HmmRegression::new(hmm, &roles.human, &roles.robot)?;
-    let o = roles.robot.len();
+    roles.check(data.dim())?;
+    let gmr = HmmRegression::new(hmm, roles.human(), roles.robot())?;
+    let o = roles.robot().len();
     data.iter()
         .map(|seq| {
-            let sub = select(seq, &roles.human);
-            let pred = gmr.predict(Frames::new(&sub, roles.human.len())?, false)?;
+            let sub = select(seq, roles.human());
+            let pred = gmr.predict(Frames::new(&sub, roles.human().len())?, false)?;
             Ok(seq
                 .iter()
                 .enumerate()
@@ -325,7 +264,7 @@ pub fn prediction_errors(
                     // Missing robot values (NaN) are not scored: such a frame is
                     // never "badly predicted" for lack of a value to compare with.
                     roles
-                        .robot
+                        .robot()
                         .iter()
                         .enumerate()
                         .filter(|(_, &r)| !x[r].is_nan())
@@ -337,12 +276,34 @@ pub fn prediction_errors(
         .collect()
 }
 
-/// The runs of flagged frames as sequences.
+/// The runs of at least `min_run` flagged frames as sequences.
+///
+/// Errors when `flags` does not have one flag per frame of every sequence of
+/// `data`, and ([`TscError::NoTransitions`], saying whether anything was
+/// flagged) when there is no such run.
 pub fn transition_sequences(
     data: &SequenceSet,
     flags: &TransitionFlags,
     min_run: usize,
 ) -> Result<SequenceSet> {
+    if flags.len() != data.len() || data.lengths().zip(flags).any(|(len, f)| f.len() != len) {
+        let list = |v: Vec<usize>| {
+            v.iter()
+                .map(usize::to_string)
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
+        return Err(TscError::InvalidSetting {
+            name: "flags",
+            reason: format!(
+                "one flag per frame of every sequence is needed: {} sequences of {} frames, flags for {} sequences of {}",
+                data.len(),
+                list(data.lengths().collect()),
+                flags.len(),
+                list(flags.iter().map(Vec::len).collect())
+            ),
+        });
+    }
     let d = data.dim();
     let mut seqs: Vec<&[f64]> = Vec::new();
     for (seq, f) in data.iter().zip(flags) {
@@ -351,26 +312,57 @@ pub fn transition_sequences(
         }
     }
     if seqs.is_empty() {
-        return Err(TscError::NoTransitions { min_len: min_run });
+        let flagged = flags.iter().flatten().filter(|f| **f).count();
+        let longest = flags
+            .iter()
+            .flat_map(|f| runs(f, 1))
+            .map(|r| r.len())
+            .max()
+            .unwrap_or(0);
+        return Err(TscError::NoTransitions {
+            min_run,
+            cause: if flagged == 0 {
+                NoTransitionCause::NothingFlagged { swamped: None }
+            } else {
+                NoTransitionCause::RunsTooShort { flagged, longest }
+            },
+        });
     }
     Ok(SequenceSet::new(&seqs, d)?)
 }
 
-/// A fitted TSC-HMM: the base HMM, the transition HMM and their composition.
+/// A fitted TSC-HMM: the base HMM `λ`, the transition HMM `λ_T` and their
+/// composition (with the union HMM for the union compositions).
+///
+/// Its parts agree by construction ([`TscHmm::new`], and on deserialisation).
 #[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(try_from = "TscHmmRaw")]
 pub struct TscHmm {
-    /// The base HMM `λ` (joint frames).
-    pub base: Hmm<Gaussian>,
-    /// The transition-state HMM `λ_T` (joint frames).
-    pub transition: Hmm<Gaussian>,
-    /// The union HMM, for the union compositions.
-    pub union: Option<Hmm<Gaussian>>,
-    /// How the two predict together.
-    pub composition: Composition,
+    base: Hmm<Gaussian>,
+    transition: Hmm<Gaussian>,
+    union: Option<Hmm<Gaussian>>,
+    composition: Composition,
+}
+
+/// The serialised form of [`TscHmm`], before validation.
+#[derive(Deserialize)]
+struct TscHmmRaw {
+    base: Hmm<Gaussian>,
+    transition: Hmm<Gaussian>,
+    union: Option<Hmm<Gaussian>>,
+    composition: Composition,
+}
+
+impl TryFrom<TscHmmRaw> for TscHmm {
+    type Error = TscError;
+    fn try_from(r: TscHmmRaw) -> Result<Self> {
+        TscHmm::new(r.base, r.transition, r.union, r.composition)
+    }
 }
 
 /// What fitting a TSC-HMM did.
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone)]
+#[non_exhaustive]
 pub struct TscReport {
     /// Fit of `λ`.
     pub base: HmmFitReport,
@@ -383,7 +375,7 @@ pub struct TscReport {
     /// Number of transition segments `λ_T` was trained on.
     pub segments: usize,
     /// The automatic choice of `λ`'s number of states, if any.
-    pub selection: Option<Selection>,
+    pub selection: Option<AutoStatesReport>,
 }
 
 /// The union of two HMMs' states: emissions side by side, transitions block-diagonal
@@ -422,43 +414,99 @@ pub fn union_of(a: &Hmm<Gaussian>, b: &Hmm<Gaussian>, epsilon: f64) -> Result<Hm
     Ok(Hmm::new(start, trans, emission)?)
 }
 
+/// The largest variance of any feature over the observed values of `data`
+/// (`0` if nothing is observed).
+fn largest_variance(data: &SequenceSet) -> f64 {
+    let d = data.dim();
+    let (mut n, mut sum, mut sq) = (vec![0.0; d], vec![0.0; d], vec![0.0; d]);
+    for x in data.all_frames().iter() {
+        for (k, v) in x.iter().enumerate().filter(|(_, v)| !v.is_nan()) {
+            n[k] += 1.0;
+            sum[k] += v;
+            sq[k] += v * v;
+        }
+    }
+    (0..d)
+        .filter(|&k| n[k] > 0.0)
+        .map(|k| (sq[k] / n[k] - (sum[k] / n[k]).powi(2)).max(0.0))
+        .fold(0.0, f64::max)
+}
+
 impl TscHmm {
-    /// Checks that the parts agree: `λ` and `λ_T` (and the union) have the same
-    /// dimension; a union composition has its union HMM of `S + S_T` states, the gate none.
-    pub fn validate(&self) -> Result<()> {
+    /// A TSC-HMM from its parts: `λ` and `λ_T` (and the union) have the same
+    /// dimension; a union composition has its union HMM of `S + S_T` states,
+    /// the gate none.
+    pub fn new(
+        base: Hmm<Gaussian>,
+        transition: Hmm<Gaussian>,
+        union: Option<Hmm<Gaussian>>,
+        composition: Composition,
+    ) -> Result<TscHmm> {
         let bad = |reason: String| {
-            Err(TscError::InvalidSetting {
-                name: "tsc-hmm model",
+            Err(TscError::InvalidModel {
+                model: "tsc-hmm model",
                 reason,
             })
         };
-        let d = self.base.dim();
-        if self.transition.dim() != d {
+        let d = base.dim();
+        if transition.dim() != d {
             return bad(format!(
                 "the transition HMM has dimension {}, the base HMM {d}",
-                self.transition.dim()
+                transition.dim()
             ));
         }
-        let s = self.base.n_states() + self.transition.n_states();
-        match (self.composition, &self.union) {
-            (Composition::Union | Composition::UnionFrozen, None) => bad(format!(
-                "the composition is {:?}, which predicts with the union HMM, but the model has no union HMM (`union: null`)",
-                self.composition
-            )),
+        let s = base.n_states() + transition.n_states();
+        match (composition, &union) {
+            (Composition::Union | Composition::UnionFrozen, None) => {
+                return bad(format!(
+                    "the composition is the {composition}, which predicts with the union HMM, but the model has no union HMM (`union: null`)"
+                ))
+            }
             (Composition::Union | Composition::UnionFrozen, Some(u))
                 if u.dim() != d || u.n_states() != s =>
             {
-                bad(format!(
+                return bad(format!(
                     "the union HMM has {} states of dimension {}, not the {s} states of dimension {d} of λ and λ_T",
                     u.n_states(),
                     u.dim()
                 ))
             }
-            (Composition::Gated, Some(_)) => bad(
-                "the composition is Gated, which predicts with λ and λ_T, but the model holds a union HMM".into(),
-            ),
-            _ => Ok(()),
+            (Composition::Gated, Some(_)) => {
+                return bad(
+                    "the composition is the likelihood gate, which predicts with λ and λ_T, but the model holds a union HMM".into(),
+                )
+            }
+            _ => {}
         }
+        Ok(TscHmm {
+            base,
+            transition,
+            union,
+            composition,
+        })
+    }
+
+    /// The base HMM `λ` (joint frames).
+    pub fn base(&self) -> &Hmm<Gaussian> {
+        &self.base
+    }
+    /// The transition-state HMM `λ_T` (joint frames).
+    pub fn transition(&self) -> &Hmm<Gaussian> {
+        &self.transition
+    }
+    /// The union HMM, for the union compositions (states `0..S` are `λ`'s,
+    /// `S..S + S_T` `λ_T`'s).
+    pub fn union(&self) -> Option<&Hmm<Gaussian>> {
+        self.union.as_ref()
+    }
+    /// How the two predict together.
+    pub fn composition(&self) -> Composition {
+        self.composition
+    }
+    /// Number of states of the model that predicts: the union's `S + S_T`, or
+    /// `S + S_T` of the gate's two models.
+    pub fn n_states(&self) -> usize {
+        self.base.n_states() + self.transition.n_states()
     }
 
     /// Algorithm 1 and the chosen composition, on joint training sequences.
@@ -468,7 +516,6 @@ impl TscHmm {
         settings: &TscSettings,
     ) -> Result<(Self, TscReport)> {
         roles.check(data.dim())?;
-        settings.validate()?;
         if let Some((k, shortest)) = data.iter().map(|s| s.len()).enumerate().min_by_key(|x| x.1) {
             if settings.window >= shortest {
                 return Err(TscError::InvalidSetting {
@@ -489,13 +536,37 @@ impl TscHmm {
             }
         };
         let flags: TransitionFlags = flags.iter().map(|f| dilate(f, settings.window)).collect();
-        let segments = transition_sequences(data, &flags, settings.min_run.max(1))?;
-        let tsc = HmmSettings {
-            states: settings.tsc_states,
-            auto_states: None,
-            ..settings.base.clone()
-        };
-        let (transition, transition_report) = tsc.fit(&segments)?;
+        let segments =
+            transition_sequences(data, &flags, settings.min_run).map_err(|e| match e {
+                // Say why nothing was flagged when the regularisation hides the states.
+                TscError::NoTransitions {
+                    min_run,
+                    cause: NoTransitionCause::NothingFlagged { swamped: None },
+                } => {
+                    let (reg, var) = (settings.base.reg(), largest_variance(data));
+                    TscError::NoTransitions {
+                        min_run,
+                        cause: NoTransitionCause::NothingFlagged {
+                            swamped: (var > 0.0 && reg > var).then_some((reg, var)),
+                        },
+                    }
+                }
+                e => e,
+            })?;
+        let tsc = settings
+            .base
+            .to_builder()
+            .states(settings.tsc_states)
+            .build()?;
+        let (transition, transition_report) =
+            tsc.fit(&segments).map_err(|e| TscError::TransitionModel {
+                tsc_states: settings.tsc_states,
+                window: settings.window,
+                segments: segments.len(),
+                frames: segments.total_frames(),
+                shortest: segments.lengths().min().unwrap_or(0),
+                source: Box::new(e),
+            })?;
         let (union, union_report) = match settings.composition {
             Composition::Gated => (None, None),
             Composition::Union | Composition::UnionFrozen => {
@@ -505,10 +576,10 @@ impl TscHmm {
                     ..Update::default()
                 };
                 let bw = BaumWelch::builder()
-                    .max_iter(settings.base.max_iter)
-                    .tol(settings.base.tol)
+                    .max_iter(settings.base.max_iter())
+                    .tol(settings.base.tol())
                     .convergence(Convergence::MeanPerSequence)
-                    .regularisation(Regularisation::add_diagonal(settings.base.reg)?)
+                    .regularisation(Regularisation::add_diagonal(settings.base.reg())?)
                     .update(update)
                     .build()?;
                 let fitted = bw.fit_from(initial, data)?;
@@ -517,12 +588,7 @@ impl TscHmm {
         };
         let n_segments = segments.len();
         Ok((
-            TscHmm {
-                base,
-                transition,
-                union,
-                composition: settings.composition,
-            },
+            TscHmm::new(base, transition, union, settings.composition)?,
             TscReport {
                 base: base_report,
                 transition: transition_report,

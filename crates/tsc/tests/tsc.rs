@@ -4,29 +4,23 @@
 use phasekit_emission::{Frames, SequenceSet};
 use phasekit_gmr::HmmRegression;
 use phasekit_tsc::detect::{dilate, disagreement, label_changes, runs, Labeller, ViterbiLabeller};
+use phasekit_tsc::human_frames;
 use phasekit_tsc::krishnan::windowed;
-use phasekit_tsc::preset::human_frames;
 use phasekit_tsc::synthetic::{generate, with_velocities, Interaction};
 use phasekit_tsc::tsc_hmm::{union_of, TscHmm};
 use phasekit_tsc::{
-    Composition, HmmSettings, KrishnanSettings, Method, Model, PresetOptions, Roles, Selector,
-    TimeClustering, TscSettings, PRESETS,
+    Composition, HmmSettings, KrishnanSettings, Method, Model, Preset, PresetOptions, Roles,
+    Selector, TimeClustering, TscSettings,
 };
 use proptest::prelude::*;
 
 fn roles() -> Roles {
-    Roles {
-        human: vec![0, 1, 2],
-        robot: vec![3, 4, 5],
-    }
+    Roles::new(vec![0, 1, 2], vec![3, 4, 5]).unwrap()
 }
 
 /// Roles of the 12-D features (positions and velocities of both hands).
 fn roles12() -> Roles {
-    Roles {
-        human: (0..6).collect(),
-        robot: (6..12).collect(),
-    }
+    Roles::new((0..6).collect(), (6..12).collect()).unwrap()
 }
 
 /// Standardised position+velocity features of every demonstration (so that the
@@ -125,8 +119,8 @@ proptest! {
         let d = dilate(&flags, w);
         for (t, f) in flags.iter().enumerate() {
             if *f {
-                for k in t.saturating_sub(w)..(t + w + 1).min(flags.len()) {
-                    prop_assert!(d[k]);
+                for dk in &d[t.saturating_sub(w)..(t + w + 1).min(flags.len())] {
+                    prop_assert!(*dk);
                 }
             }
         }
@@ -149,9 +143,10 @@ proptest! {
     #[test]
     fn disagreement_flags_exactly_the_differing_frames(a in proptest::collection::vec(0usize..3, 0..40)) {
         let b: Vec<usize> = a.iter().enumerate().map(|(t, x)| if t % 3 == 0 { (x + 1) % 3 } else { *x }).collect();
-        let f = disagreement(&a, &b);
-        for t in 0..a.len() {
-            prop_assert_eq!(f[t], t % 3 == 0);
+        let f = disagreement(&a, &b).unwrap();
+        prop_assert_eq!(f.len(), a.len());
+        for (t, ft) in f.iter().enumerate() {
+            prop_assert_eq!(*ft, t % 3 == 0);
         }
     }
 }
@@ -161,7 +156,7 @@ fn hmm_segments_land_near_true_boundaries() {
     let demos = generate(10, 1);
     let feats = features(&demos);
     let train = SequenceSet::new(&feats, 12).unwrap();
-    let (hmm, _) = HmmSettings::paper(4).fit(&train).unwrap();
+    let (hmm, _) = HmmSettings::paper(4).unwrap().fit(&train).unwrap();
     let mut distances = Vec::new();
     for (d, f) in demos.iter().zip(&feats) {
         let seq = Frames::new(f, 12).unwrap();
@@ -232,14 +227,18 @@ fn tsc_transition_frames_cluster_around_boundaries() {
         recalled as f64 >= 0.75 * boundaries as f64,
         "only {recalled} of {boundaries} boundaries have a flagged frame within {RECALL_DISTANCE} frames"
     );
-    // Recall of the TSC-HMM segmentation (λ's Viterbi state changes and the transition
-    // frames, as `segment` reports them): every true boundary is found.
+    // Recall of the TSC-HMM segmentation (λ's Viterbi state changes, `base_labels`, and
+    // the transition frames, as `segment` reports them): every true boundary is found.
     let (model, _) = Method::TscHmm(settings).fit(&train, &roles12()).unwrap();
     for (k, (d, f)) in demos.iter().zip(&feats).enumerate() {
         let seg = model
             .segment(Frames::new(f, 12).unwrap(), &roles12())
             .unwrap();
-        let mut detected: Vec<usize> = label_changes(&seg.labels, 2)
+        let base_labels = seg.base_labels.as_ref().unwrap();
+        // The labels are the predicting union's states; λ's are its first 4.
+        assert_eq!(seg.labels.len(), base_labels.len());
+        assert!(seg.labels.iter().all(|&s| s < 7) && base_labels.iter().all(|&s| s < 4));
+        let mut detected: Vec<usize> = label_changes(base_labels, 2)
             .iter()
             .enumerate()
             .filter_map(|(t, x)| x.then_some(t))
@@ -263,13 +262,13 @@ fn krishnan_transitions_land_near_boundaries() {
     let demos = generate(10, 3);
     let feats = features(&demos);
     let train = SequenceSet::new(&feats, 12).unwrap();
-    let settings = KrishnanSettings {
-        components: Some(5),
-        transition_clusters: Some(4),
-        ..KrishnanSettings::default()
-    };
-    let tsc = settings.fit(&train).unwrap();
-    assert!(!tsc.kept.is_empty());
+    let settings = KrishnanSettings::builder()
+        .components(Some(5))
+        .transition_clusters(Some(4))
+        .build()
+        .unwrap();
+    let (tsc, _) = settings.fit(&train).unwrap();
+    assert!(!tsc.kept().is_empty());
     let mut all = Vec::new();
     for (k, (d, f)) in demos.iter().zip(&feats).enumerate() {
         let seg = tsc.segment(Frames::new(f, 12).unwrap()).unwrap();
@@ -307,11 +306,11 @@ fn union_keeps_stochastic_rows_and_frozen_emissions_stay_unchanged() {
     let train = data(&demos);
     for composition in [Composition::Union, Composition::UnionFrozen] {
         let (m, _) = TscHmm::fit(&train, &roles(), &TscSettings::paper(2, composition)).unwrap();
-        let u = m.union.as_ref().unwrap();
+        let u = m.union().unwrap();
         assert_eq!(u.n_states(), 7);
         assert_stochastic(u.transition(), 7);
         assert_stochastic(u.start(), 7);
-        let initial = union_of(&m.base, &m.transition, 0.01).unwrap();
+        let initial = union_of(m.base(), m.transition(), 0.01).unwrap();
         assert_stochastic(initial.transition(), 7);
         let (a, b) = (u.emission(), initial.emission());
         if composition == Composition::UnionFrozen {
@@ -337,14 +336,14 @@ fn every_preset_fits_predicts_online_like_batch_and_round_trips() {
     let train = data(&demos);
     let test = &generate(1, 99)[0];
     let seq = Frames::new(&test.frames, 6).unwrap();
-    let human = human_frames(seq, &roles());
+    let human = human_frames(seq, &roles()).unwrap();
     let human = Frames::new(&human, 3).unwrap();
-    let options = PresetOptions {
-        window: 2,
-        ..PresetOptions::default()
-    };
-    for name in PRESETS {
-        let method = Method::preset(name, &options).unwrap();
+    let options = PresetOptions::builder().window(2).build().unwrap();
+    for preset in Preset::ALL {
+        let name = preset.name();
+        assert_eq!(name.parse::<Preset>().unwrap(), preset);
+        assert_eq!(preset.to_string(), name);
+        let method = Method::preset(preset, &options).unwrap();
         let (model, summary) = method
             .fit(&train, &roles())
             .unwrap_or_else(|e| panic!("{name}: {e}"));
@@ -356,11 +355,8 @@ fn every_preset_fits_predicts_online_like_batch_and_round_trips() {
         let mut online = predictor.online();
         for (t, x) in human.iter().enumerate() {
             let m = online.step(x, true).unwrap().to_vec();
-            for j in 0..3 {
-                assert!(
-                    (m[j] - batch.mean[t * 3 + j]).abs() < 1e-9,
-                    "{name}: frame {t}"
-                );
+            for (mj, bj) in m.iter().zip(&batch.mean[t * 3..(t + 1) * 3]) {
+                assert!((mj - bj).abs() < 1e-9, "{name}: frame {t}");
             }
             for (a, b) in online.covariance().iter().zip(&cov[t * 9..(t + 1) * 9]) {
                 assert!((a - b).abs() < 1e-9, "{name}: covariance at frame {t}");
@@ -396,24 +392,23 @@ fn every_preset_fits_predicts_online_like_batch_and_round_trips() {
 
 #[test]
 fn unknown_preset_and_bad_roles_are_clear_errors() {
-    let err = Method::preset("nope", &PresetOptions::default())
-        .unwrap_err()
-        .to_string();
+    let err = "nope".parse::<Preset>().unwrap_err().to_string();
     assert!(
         err.contains("unknown preset") && err.contains("tsc-hmm"),
         "{err}"
     );
+    // Roles that share a dimension are refused when made …
+    let err = Roles::new(vec![0, 1], vec![1, 2]).unwrap_err().to_string();
+    assert!(err.contains("both input and output"), "{err}");
+    // … and roles outside the frame when fitted.
     let train = data(&generate(3, 6));
-    let bad = Roles {
-        human: vec![0, 1],
-        robot: vec![1, 2],
-    };
-    let err = Method::preset("hmm", &PresetOptions::default())
+    let outside = Roles::new(vec![0, 1], vec![2, 6]).unwrap();
+    let err = Method::preset(Preset::Hmm, &PresetOptions::default())
         .unwrap()
-        .fit(&train, &bad)
+        .fit(&train, &outside)
         .unwrap_err()
         .to_string();
-    assert!(err.contains("both input and output"), "{err}");
+    assert!(err.contains("out of range"), "{err}");
 }
 
 /// Piecewise-constant 2-D demonstrations: segment `i` of a demonstration sits at
@@ -477,15 +472,17 @@ fn pruning_drops_clusters_supported_by_fewer_than_rho_of_the_demonstrations() {
         .collect();
     let demos = piecewise(&plans, &LEVELS, 30, 3, 11);
     let train = SequenceSet::new(&demos, 2).unwrap();
-    let settings = |rho: f64| KrishnanSettings {
-        components: Some(4),
-        transition_clusters: Some(3),
-        prune_fraction: rho,
-        ..KrishnanSettings::default()
+    let settings = |rho: f64| {
+        KrishnanSettings::builder()
+            .components(Some(4))
+            .transition_clusters(Some(3))
+            .prune_fraction(rho)
+            .build()
+            .unwrap()
     };
     // Support of every cluster, counted from the segmentations of a model that keeps all.
-    let all = settings(0.0).fit(&train).unwrap();
-    assert_eq!(all.kept, vec![0, 1, 2]);
+    let (all, _) = settings(0.0).fit(&train).unwrap();
+    assert_eq!(all.kept(), [0, 1, 2]);
     let mut support = [0usize; 3];
     for d in &demos {
         let seg = all.segment(Frames::new(d, 2).unwrap()).unwrap();
@@ -501,35 +498,33 @@ fn pruning_drops_clusters_supported_by_fewer_than_rho_of_the_demonstrations() {
     sorted.sort_unstable();
     assert_eq!(sorted, [3, 10, 10], "support of the clusters: {support:?}");
     let rare = support.iter().position(|&s| s == 3).unwrap();
-    let m = all.transition_mixture.components().mean(rare);
+    let m = all.transition_mixture().components().mean(rare);
     assert!(
         (m[0] - 0.0).abs() < 0.5 && (m[1] - 5.0).abs() < 0.5,
         "the rare cluster is at D: {m:?}"
     );
     for rho in [0.1, 0.3, 0.31, 0.5, 0.9, 1.0] {
-        let tsc = settings(rho).fit(&train).unwrap();
+        let (tsc, _) = settings(rho).fit(&train).unwrap();
         let expected: Vec<usize> = (0..3)
             .filter(|&c| support[c] as f64 >= rho * 10.0)
             .collect();
-        assert_eq!(tsc.kept, expected, "ρ = {rho}");
+        assert_eq!(tsc.kept(), expected, "ρ = {rho}");
         // Pruned clusters are reported as no cluster.
         let seg = tsc.segment(Frames::new(&demos[0], 2).unwrap()).unwrap();
         assert!(seg.clusters.iter().flatten().all(|c| expected.contains(c)));
     }
     // Through the preset key.
-    let o = PresetOptions {
-        rho: 0.31,
-        ..PresetOptions::default()
-    };
-    match Method::preset("gmm-tsc", &o).unwrap() {
-        Method::GmmTsc { tsc, .. } => assert_eq!(tsc.prune_fraction, 0.31),
+    let o = PresetOptions::builder().rho(0.31).build().unwrap();
+    match Method::preset(Preset::GmmTsc, &o).unwrap() {
+        Method::GmmTsc { tsc, .. } => assert_eq!(tsc.prune_fraction(), 0.31),
         other => panic!("{other:?}"),
     }
-    let bad = PresetOptions {
-        rho: 1.5,
-        ..PresetOptions::default()
-    };
-    let err = Method::preset("gmm-tsc", &bad).unwrap_err().to_string();
+    // An out-of-range ρ is refused when the options are built.
+    let err = PresetOptions::builder()
+        .rho(1.5)
+        .build()
+        .unwrap_err()
+        .to_string();
     assert!(err.contains("ρ") && err.contains("1.5"), "{err}");
 }
 
@@ -540,17 +535,18 @@ fn time_subclustering_splits_one_place_visited_at_two_moments() {
     let plans = vec![vec![0, 1, 0, 1]; 8];
     let demos = picewise_abab(&plans);
     let train = SequenceSet::new(&demos, 2).unwrap();
-    let base = KrishnanSettings {
-        components: Some(2),
-        transition_clusters: Some(2),
-        ..KrishnanSettings::default()
-    };
-    let timed = KrishnanSettings {
-        time_clusters: Some(TimeClustering::default()),
-        ..base.clone()
-    };
-    let plain = base.fit(&train).unwrap();
-    let split = timed.fit(&train).unwrap();
+    let base = KrishnanSettings::builder()
+        .components(Some(2))
+        .transition_clusters(Some(2))
+        .build()
+        .unwrap();
+    let timed = base
+        .to_builder()
+        .time_clusters(Some(TimeClustering::default()))
+        .build()
+        .unwrap();
+    let (plain, _) = base.fit(&train).unwrap();
+    let (split, _) = timed.fit(&train).unwrap();
     assert_eq!(plain.reported_clusters().len(), 2);
     assert_eq!(
         split.reported_clusters().len(),
@@ -594,12 +590,9 @@ fn time_subclustering_splits_one_place_visited_at_two_moments() {
         .collect();
     assert!(first.iter().all(|c| *c == first[0]), "{first:?}");
     // The preset key turns it on.
-    let o = PresetOptions {
-        time_clusters: 3,
-        ..PresetOptions::default()
-    };
-    match Method::preset("gmm-tsc", &o).unwrap() {
-        Method::GmmTsc { tsc, .. } => assert_eq!(tsc.time_clusters.unwrap().max_clusters, 3),
+    let o = PresetOptions::builder().time_clusters(3).build().unwrap();
+    match Method::preset(Preset::GmmTsc, &o).unwrap() {
+        Method::GmmTsc { tsc, .. } => assert_eq!(tsc.time_clusters().unwrap().max_clusters(), 3),
         other => panic!("{other:?}"),
     }
 }
@@ -615,64 +608,69 @@ fn automatic_component_counts_find_the_regimes() {
     let demos = piecewise(&plans, &LEVELS, 40, 4, 13);
     let train = SequenceSet::new(&demos, 2).unwrap();
     for selector in [Selector::Bic, Selector::GMeans] {
-        let settings = KrishnanSettings {
-            components: None,
-            transition_clusters: None,
-            max_components: 6,
-            selector,
-            ..KrishnanSettings::default()
-        };
-        let tsc = settings.fit(&train).unwrap();
-        assert_eq!(tsc.mixture.n_components(), 3, "{selector:?}: frame mixture");
+        let settings = KrishnanSettings::builder()
+            .components(None)
+            .transition_clusters(None)
+            .max_components(6)
+            .selector(selector)
+            .build()
+            .unwrap();
+        let (tsc, report) = settings.fit(&train).unwrap();
         assert_eq!(
-            tsc.transition_mixture.n_components(),
+            tsc.mixture().n_components(),
+            3,
+            "{selector:?}: frame mixture"
+        );
+        assert_eq!(
+            tsc.transition_mixture().n_components(),
             2,
             "{selector:?}: the entries into B and into C"
         );
-        assert_eq!(tsc.kept.len(), 2);
+        assert_eq!(tsc.kept().len(), 2);
+        // Both counts were automatic, from the whole range (the data support more).
+        let frame = report.frame_components.unwrap();
+        assert_eq!((frame.count, frame.range, frame.lowered), (3, 2..=6, None));
+        assert_eq!(report.transition_clusters.unwrap().count, 2);
     }
     // The preset path: `gmm-tsc:states=auto,tsc-states=0,select=gmeans`.
-    let o = PresetOptions {
-        auto_states: true,
-        tsc_states: 0,
-        select: Selector::GMeans,
-        max_states: 6,
-        window: 1,
-        ..PresetOptions::default()
-    };
-    let method = Method::preset("gmm-tsc", &o).unwrap();
+    let o = PresetOptions::builder()
+        .auto_states()
+        .tsc_states(0)
+        .select(Selector::GMeans)
+        .max_states(6)
+        .window(1)
+        .build()
+        .unwrap();
+    let method = Method::preset(Preset::GmmTsc, &o).unwrap();
     match &method {
         Method::GmmTsc { tsc, .. } => {
-            assert_eq!(tsc.components, None);
-            assert_eq!(tsc.transition_clusters, None);
-            assert_eq!(tsc.selector, Selector::GMeans);
-            assert_eq!(tsc.max_components, 6);
+            assert_eq!(tsc.components(), None);
+            assert_eq!(tsc.transition_clusters(), None);
+            assert_eq!(tsc.selector(), Selector::GMeans);
+            assert_eq!(tsc.max_components(), 6);
         }
         other => panic!("{other:?}"),
     }
-    let roles = Roles {
-        human: vec![0],
-        robot: vec![1],
-    };
+    let roles = Roles::new(vec![0], vec![1]).unwrap();
     let (model, summary) = method.fit(&train, &roles).unwrap();
     let Model::GmmTsc { tsc, mixture } = &model else {
         panic!("{model:?}")
     };
     // The GMM it extends follows the chosen count: 3 components plus the 2 kept clusters.
-    assert_eq!(tsc.mixture.n_components(), 3);
-    assert_eq!(mixture.n_components(), 3 + tsc.kept.len());
+    assert_eq!(tsc.mixture().n_components(), 3);
+    assert_eq!(mixture.n_components(), 3 + tsc.kept().len());
     assert!(summary.chosen.unwrap().contains("3 frame components"));
 }
 
 #[test]
 fn automatic_hmm_states_take_the_lowest_bic() {
     let train = data(&generate(6, 21));
-    let o = PresetOptions {
-        auto_states: true,
-        max_states: 6,
-        ..PresetOptions::default()
-    };
-    let (model, summary) = Method::preset("hmm", &o)
+    let o = PresetOptions::builder()
+        .auto_states()
+        .max_states(6)
+        .build()
+        .unwrap();
+    let (model, summary) = Method::preset(Preset::Hmm, &o)
         .unwrap()
         .fit(&train, &roles())
         .unwrap();
@@ -688,44 +686,75 @@ fn automatic_hmm_states_take_the_lowest_bic() {
         Some(&*format!("states={best} (BIC)"))
     );
     // The chosen model is the fixed-count fit, and its BIC is the reported score.
-    let (fixed, _) = HmmSettings::paper(best).fit(&train).unwrap();
+    let (fixed, _) = HmmSettings::paper(best).unwrap().fit(&train).unwrap();
     let Model::Hmm(h) = &model else { panic!() };
     assert_eq!(h.emission().means(), fixed.emission().means());
     let bic = fixed.bic(&train).unwrap();
     assert_eq!(scores.iter().find(|s| s.0 == best).unwrap().1, bic);
     // A TSC-HMM's λ can be chosen the same way.
-    let (tsc, summary) = Method::preset("tsc-hmm", &o)
+    let (tsc, summary) = Method::preset(Preset::TscHmm, &o)
         .unwrap()
         .fit(&train, &roles())
         .unwrap();
     let Model::TscHmm { model: m, .. } = &tsc else {
         panic!()
     };
-    assert_eq!(m.base.n_states(), best);
+    assert_eq!(m.base().n_states(), best);
     assert_eq!(tsc.n_states(), best + 3);
     assert!(!summary.bic.is_empty());
-    // G-means chooses λ's states too: the G-means count of the pooled frames,
-    // clamped to the range, fitted and scored by its BIC.
-    let g = PresetOptions {
-        select: Selector::GMeans,
-        ..o.clone()
-    };
-    let (gm, gsummary) = Method::preset("hmm", &g)
+    // G-means chooses λ's states too, when its count of the pooled frames lies
+    // within the range. On these trajectories it finds far more Gaussian clusters
+    // than 6 (27): the count would only be the cap, so it is refused, saying so.
+    let g = o.to_builder().select(Selector::GMeans).build().unwrap();
+    let err = Method::preset(Preset::Hmm, &g)
         .unwrap()
         .fit(&train, &roles())
-        .unwrap();
-    let shortest = train.lengths().min().unwrap();
-    let k = phasekit_gmm::gmeans(train.all_frames(), phasekit_gmm::GMeans::default())
+        .unwrap_err();
+    let found = phasekit_gmm::gmeans(train.all_frames(), phasekit_gmm::GMeans::default())
         .unwrap()
-        .k
-        .clamp(2, o.max_states.min(shortest));
-    assert_eq!(gm.n_states(), k);
-    let Model::Hmm(gh) = &gm else { panic!() };
-    assert_eq!(gsummary.bic, vec![(k, gh.bic(&train).unwrap())]);
+        .k;
+    assert!(found > 6, "G-means finds {found} clusters");
+    assert!(
+        matches!(err, phasekit_tsc::TscError::GMeansAboveRange { max: 6, .. }),
+        "{err:?}"
+    );
+    let msg = err.to_string();
+    assert!(msg.contains("more than the 6 HMM states allowed"), "{msg}");
+    // On frames that are a mixture of a few Gaussians (a 3-state HMM with
+    // well-separated 2-D states), G-means' count is the choice, whatever the cap
+    // (it used to be the cap: 10 → 10, 30 → 30), fitted and scored by its BIC.
+    let truth = phasekit_hmm::Hmm::new(
+        vec![1.0 / 3.0; 3],
+        vec![0.9, 0.05, 0.05, 0.05, 0.9, 0.05, 0.05, 0.05, 0.9],
+        phasekit_emission::Gaussian::spherical(
+            2,
+            vec![0.0, 0.0, 10.0, 0.0, 0.0, 10.0],
+            vec![1.0; 3],
+        )
+        .unwrap(),
+    )
+    .unwrap();
+    let mut rng = <rand_chacha::ChaCha8Rng as rand::SeedableRng>::seed_from_u64(11);
+    let seqs: Vec<Vec<f64>> = (0..10)
+        .map(|_| truth.sample(120, &mut rng).unwrap().0)
+        .collect();
+    let blobs = SequenceSet::new(&seqs, 2).unwrap();
+    let xy = Roles::new(vec![0], vec![1]).unwrap();
+    for max in [10, 30] {
+        let g = g.to_builder().max_states(max).build().unwrap();
+        let (gm, gsummary) = Method::preset(Preset::Hmm, &g)
+            .unwrap()
+            .fit(&blobs, &xy)
+            .unwrap();
+        assert_eq!(gm.n_states(), 3, "max {max}");
+        let Model::Hmm(gh) = &gm else { panic!() };
+        assert_eq!(gsummary.bic, vec![(3, gh.bic(&blobs).unwrap())]);
+        assert_eq!(gsummary.chosen.as_deref(), Some("states=3 (G-means)"));
+    }
     // Refused at construction: auto states for the CV presets and gmm.
-    for name in ["hmm-cv", "tsc-hmm-cv", "gmm"] {
-        let err = Method::preset(name, &o).unwrap_err().to_string();
-        assert!(err.contains("states=auto"), "{name}: {err}");
+    for preset in [Preset::HmmCv, Preset::TscHmmCv, Preset::Gmm] {
+        let err = Method::preset(preset, &o).unwrap_err().to_string();
+        assert!(err.contains("states=auto"), "{preset}: {err}");
     }
 }
 
@@ -766,24 +795,24 @@ fn gated_prediction_takes_the_transition_model_where_it_explains_the_human_bette
     let demos = generate(8, 31);
     let train = data(&demos);
     let (m, _) = TscHmm::fit(&train, &roles(), &TscSettings::paper(2, Composition::Gated)).unwrap();
-    assert!(m.union.is_none());
+    assert!(m.union().is_none());
     let model = Model::TscHmm {
         model: m.clone(),
         window: 2,
     };
     let predictor = model.predictor(&roles()).unwrap();
-    let base = HmmRegression::new(&m.base, &[0, 1, 2], &[3, 4, 5]).unwrap();
-    let transition = HmmRegression::new(&m.transition, &[0, 1, 2], &[3, 4, 5]).unwrap();
+    let base = HmmRegression::new(m.base(), &[0, 1, 2], &[3, 4, 5]).unwrap();
+    let transition = HmmRegression::new(m.transition(), &[0, 1, 2], &[3, 4, 5]).unwrap();
     let (mut from_t, mut from_b) = (0, 0);
     for test in generate(3, 32) {
         let seq = Frames::new(&test.frames, 6).unwrap();
-        let human = human_frames(seq, &roles());
+        let human = human_frames(seq, &roles()).unwrap();
         let human = Frames::new(&human, 3).unwrap();
         let gated = predictor.predict(human, true).unwrap();
         let pb = base.predict(human, true).unwrap();
         let pt = transition.predict(human, true).unwrap();
-        let lb = predictive_log_likelihoods(&m.base.marginal(&[0, 1, 2]).unwrap(), human);
-        let lt = predictive_log_likelihoods(&m.transition.marginal(&[0, 1, 2]).unwrap(), human);
+        let lb = predictive_log_likelihoods(&m.base().marginal(&[0, 1, 2]).unwrap(), human);
+        let lt = predictive_log_likelihoods(&m.transition().marginal(&[0, 1, 2]).unwrap(), human);
         for t in 0..human.len() {
             if (lt[t] - lb[t]).abs() < 1e-9 * (1.0 + lb[t].abs()) {
                 continue; // a tie up to rounding: either model may be taken
@@ -816,23 +845,34 @@ fn gated_prediction_takes_the_transition_model_where_it_explains_the_human_bette
 fn inconsistent_models_and_windows_are_refused() {
     let train = data(&generate(6, 41));
     let (m, _) = TscHmm::fit(&train, &roles(), &TscSettings::paper(2, Composition::Union)).unwrap();
-    // A union composition without its union HMM (as a hand-edited model file may have).
-    let mut broken = m.clone();
-    broken.union = None;
+    // A union composition without its union HMM (as a hand-edited model file may have):
+    // refused when made, and when read.
+    let err = TscHmm::new(
+        m.base().clone(),
+        m.transition().clone(),
+        None,
+        Composition::Union,
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(err.contains("no union HMM"), "{err}");
     let model = Model::TscHmm {
-        model: broken,
+        model: m.clone(),
         window: 2,
     };
-    let err = model.predictor(&roles()).unwrap_err().to_string();
+    let mut json: serde_json::Value = serde_json::to_value(&model).unwrap();
+    json["model"]["union"] = serde_json::Value::Null;
+    let err = serde_json::from_value::<Model>(json)
+        .unwrap_err()
+        .to_string();
     assert!(err.contains("no union HMM"), "{err}");
-    assert!(model.validate().is_err());
-    let mut gated = m.clone();
-    gated.composition = Composition::Gated;
-    assert!(Model::TscHmm {
-        model: gated,
-        window: 2
-    }
-    .validate()
+    // The gate holds no union HMM.
+    assert!(TscHmm::new(
+        m.base().clone(),
+        m.transition().clone(),
+        m.union().cloned(),
+        Composition::Gated
+    )
     .is_err());
     // A dilation as long as a demonstration flags all of it.
     let shortest = train.iter().map(|s| s.len()).min().unwrap();
@@ -845,21 +885,21 @@ fn inconsistent_models_and_windows_are_refused() {
     .to_string();
     assert!(err.contains("not shorter than demonstration"), "{err}");
     // Windows of gmm-tsc: at most MAX_WINDOW frames, and no longer than a demonstration.
-    let too_wide = PresetOptions {
-        window: phasekit_tsc::krishnan::MAX_WINDOW + 1,
-        ..PresetOptions::default()
-    };
-    let err = Method::preset("gmm-tsc", &too_wide)
+    let too_wide = PresetOptions::builder()
+        .window(phasekit_tsc::krishnan::MAX_WINDOW + 1)
+        .build()
+        .unwrap();
+    let err = Method::preset(Preset::GmmTsc, &too_wide)
         .unwrap_err()
         .to_string();
     assert!(err.contains("1..=64"), "{err}");
     let short =
         SequenceSet::new(&piecewise(&vec![vec![0, 1, 2]; 3], &LEVELS, 6, 0, 42), 2).unwrap();
-    let long = KrishnanSettings {
-        window: 19,
-        components: Some(3),
-        ..KrishnanSettings::default()
-    };
+    let long = KrishnanSettings::builder()
+        .window(19)
+        .components(Some(3))
+        .build()
+        .unwrap();
     let err = long.fit(&short).unwrap_err().to_string();
     assert!(err.contains("longer than demonstration"), "{err}");
     // Dilation never overflows.

@@ -406,10 +406,7 @@ pub fn run(a: &DemoArgs) -> Result<()> {
         robot: vec!["p2_wrist_*".into()],
         velocity: Velocity::Both,
     };
-    let options = PresetOptions {
-        seed: a.seed,
-        ..PresetOptions::default()
-    };
+    let options = PresetOptions::builder().seed(a.seed).build()?;
     let mut out = String::new();
     let frames: usize = train.iter().map(Table::n_rows).sum();
     let _ = writeln!(

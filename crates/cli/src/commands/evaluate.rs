@@ -308,8 +308,28 @@ pub fn evaluate(
             bail!("{}: no test_* demonstration to predict", action.name);
         }
         let all: Vec<data::Table> = action.train.to_vec();
+        // Bounded work, as in `fit`: the smallest training subset of a seed
+        // must support the covariances of the method's states, and fit in memory.
+        let d = match action.train.first() {
+            Some(t) => spec
+                .features(t)
+                .map_err(|e| column_hint(e, defaults))?
+                .0
+                .features
+                .len(),
+            None => 0,
+        };
+        let mut rows: Vec<usize> = action.train.iter().map(data::Table::n_rows).collect();
+        rows.sort_unstable();
+        let size = protocol
+            .train_size
+            .unwrap_or(rows.len().saturating_sub(2))
+            .min(rows.len());
+        let frames: usize = rows[..size].iter().sum();
         for m in methods {
             super::check_lengths(&all, &m.method, &m.label)?;
+            data::check_fit_size(d, frames, super::min_frames(&m.method).0)
+                .map_err(|e| CliError::new(format!("action {}, {}: {e}", action.name, m.label)))?;
         }
     }
     let total: usize = actions

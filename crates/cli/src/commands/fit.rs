@@ -162,33 +162,19 @@ pub fn fit_tables(
         seqs.iter_mut().for_each(|q| s.apply(q, &all));
     }
     let data = SequenceSet::new(&seqs, d)?;
-    let roles = Roles {
-        human: layout.human.clone(),
-        robot: layout.robot.clone(),
-    };
+    let roles = Roles::new(layout.human.clone(), layout.robot.clone())?;
+    // The library's message names the settings as flags (`CliError::from`),
+    // including its advice when the transition segments are too few or short.
     let (model, mut summary) = named
         .method
         .fit(&data, &roles)
-        .map_err(|e| {
-            let mut msg = format!("fitting `{}` failed: {e}", named.label);
-            if let phasekit_tsc::Method::TscHmm(s) = &named.method {
-                if msg.contains("too few frames") {
-                    // Suggest a window larger than the one that failed.
-                    let next = (2 * s.window).max(s.window + 2);
-                    msg.push_str(&format!(
-                        "\n  (the transition HMM is trained on the transition segments found in the demonstrations, and they are too few or too short \
-                         for {} transition states: try a larger window than ±{} (e.g. --window {next}) or fewer --tsc-states)",
-                        s.tsc_states, s.window
-                    ));
-                }
-            }
-            CliError::new(msg)
-        })?;
+        .map_err(|e| CliError::from(e).context(format!("fitting `{}` failed", named.label)))?;
     summary.warnings = data_warnings(&seqs, &layout.features, summary.regularisation);
     ModelFile::new(
         layout,
         spec.clone(),
         standardisation,
+        roles,
         MethodInfo {
             spec: named.label,
             settings: named.method,

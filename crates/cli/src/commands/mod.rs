@@ -82,28 +82,27 @@ pub fn preset_options(m: &ModelArgs) -> Result<PresetOptions> {
     if !(0.0..=1.0).contains(&m.rho) {
         bail!("--rho must lie in [0, 1], not {}", m.rho);
     }
-    let defaults = PresetOptions::default();
-    Ok(PresetOptions {
-        states: match m.states {
-            Count::Fixed(n) => n,
-            Count::Auto => defaults.states,
-        },
-        auto_states: m.states == Count::Auto,
-        select: m.select.into(),
-        max_states: m.max_states,
-        tsc_states: match m.tsc_states {
+    let options = PresetOptions::builder();
+    let options = match m.states {
+        Count::Fixed(n) => options.states(n),
+        Count::Auto => options.auto_states(),
+    };
+    Ok(options
+        .select(m.select.into())
+        .max_states(m.max_states)
+        .tsc_states(match m.tsc_states {
             Count::Fixed(n) => n,
             Count::Auto => 0,
-        },
-        window: m.window,
-        rho: m.rho,
-        time_clusters: m.time_clusters,
-        reg: m.reg,
-        max_iter: m.max_iter,
-        tol: m.tol,
-        restarts: m.restarts,
-        seed: m.seed,
-    })
+        })
+        .window(m.window)
+        .rho(m.rho)
+        .time_clusters(m.time_clusters)
+        .reg(m.reg)
+        .max_iter(m.max_iter)
+        .tol(m.tol)
+        .restarts(m.restarts)
+        .seed(m.seed)
+        .build()?)
 }
 
 /// Builds rayon's global pool with `n` threads.
@@ -142,28 +141,20 @@ pub fn split_methods(items: &[String]) -> Vec<String> {
 /// Smallest number of frames a demonstration needs for `method`, and whether per
 /// demonstration (HMM states) or in all (mixture components).
 pub fn min_frames(method: &Method) -> (usize, bool) {
-    let hmm = |s: &phasekit_tsc::HmmSettings| s.auto_states.map_or(s.states, |a| a.min);
-    match method {
-        Method::Hmm(s) => (hmm(s), true),
-        Method::TscHmm(s) => (hmm(&s.base), true),
-        Method::Gmm(s) => (s.components, false),
-        Method::GmmTsc { gmm, tsc } => (tsc.components.map_or(2, |_| gmm.components), false),
-        Method::CrossValidated { candidates, .. } => candidates
-            .iter()
-            .map(|(_, m)| min_frames(m))
-            .fold((0, false), |(n, p), (m, q)| (n.max(m), p || q)),
-    }
+    method.min_frames()
 }
 
 /// The window of `method` and whether it must be shorter than every demonstration
 /// (a TSC-HMM's dilation ±W) or at most as long (gmm-tsc's stacked frames).
 fn window_of(method: &Method) -> Vec<(usize, bool)> {
     match method {
-        Method::TscHmm(s) => vec![(s.window, true)],
-        Method::GmmTsc { tsc, .. } => vec![(tsc.window, false)],
-        Method::CrossValidated { candidates, .. } => {
-            candidates.iter().flat_map(|(_, m)| window_of(m)).collect()
-        }
+        Method::TscHmm(s) => vec![(s.window(), true)],
+        Method::GmmTsc { tsc, .. } => vec![(tsc.window(), false)],
+        Method::CrossValidated(cv) => cv
+            .candidates()
+            .iter()
+            .flat_map(|(_, m)| window_of(m))
+            .collect(),
         Method::Hmm(_) | Method::Gmm(_) => Vec::new(),
     }
 }

@@ -87,8 +87,8 @@ pub fn model_ellipses_projected(mf: &ModelFile, proj: &Projection) -> Vec<Ellips
     match &mf.model {
         Model::Hmm(h) => gaussians(h.emission(), &all(h.n_states()), usize::MAX, proj, mf, ""),
         Model::TscHmm { model, .. } => {
-            let sb = model.base.n_states();
-            match &model.union {
+            let sb = model.base().n_states();
+            match model.union() {
                 Some(u) => gaussians(
                     u.emission(),
                     &all(u.n_states()),
@@ -99,10 +99,10 @@ pub fn model_ellipses_projected(mf: &ModelFile, proj: &Projection) -> Vec<Ellips
                 ),
                 None => {
                     let mut v =
-                        gaussians(model.base.emission(), &all(sb), usize::MAX, proj, mf, "");
+                        gaussians(model.base().emission(), &all(sb), usize::MAX, proj, mf, "");
                     v.extend(gaussians(
-                        model.transition.emission(),
-                        &all(model.transition.n_states()),
+                        model.transition().emission(),
+                        &all(model.transition().n_states()),
                         0,
                         proj,
                         mf,
@@ -122,7 +122,7 @@ pub fn model_ellipses_projected(mf: &ModelFile, proj: &Projection) -> Vec<Ellips
         ),
         Model::GmmTsc { tsc, mixture } => {
             // The model file was validated: the mixture has more components than kept clusters.
-            let base = mixture.n_components().saturating_sub(tsc.kept.len());
+            let base = mixture.n_components().saturating_sub(tsc.kept().len());
             gaussians(
                 mixture.components(),
                 &all(mixture.n_components()),

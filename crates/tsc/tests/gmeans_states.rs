@@ -1,6 +1,8 @@
-//! G-means for the number of HMM states, and the checked G-means settings.
+//! G-means for the number of HMM states, and the checked G-means settings
+//! (moved here from `phasekit-gmm`: choosing HMM states by G-means needs both
+//! the mixture crate and the HMM, and this crate is above both).
 //!
-//! * `select_hmm_states_gmeans` picks the true number of states of generated
+//! * `hmm_states_gmeans` picks the true number of states of generated
 //!   data from well-separated HMMs (3, 4 and 5 states), and returns the HMM
 //!   fitted with it;
 //! * every `GMeans` setting is validated once, by the builder and on
@@ -9,8 +11,10 @@
 //! Every random draw comes from a seeded `ChaCha8Rng`.
 
 use phasekit_emission::{CovarianceType, Gaussian, SequenceSet, Shape};
-use phasekit_gmm::{gmeans, select_hmm_states_bic, select_hmm_states_gmeans, GMeans, GmmError};
-use phasekit_hmm::{BaumWelch, Hmm};
+use phasekit_gmm::{gmeans, GMeans, GmmError};
+use phasekit_hmm::{select_states_bic, BaumWelch, Hmm};
+use phasekit_tsc::select::hmm_states_gmeans;
+use phasekit_tsc::TscError;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
@@ -66,16 +70,11 @@ fn gmeans_picks_the_true_number_of_hmm_states() {
     for (s, seed) in [(3, 11), (4, 12), (5, 13)] {
         let truth = separated_hmm(s);
         let data = sample_set(&truth, 10, 120, seed);
-        let sel =
-            select_hmm_states_gmeans(&bw, template, &data, GMeans::default(), 1..=20).unwrap();
-        assert_eq!(
-            sel.selection.best, s,
-            "true {s} states: {:?}",
-            sel.selection
-        );
+        let sel = hmm_states_gmeans(&bw, template, &data, GMeans::default(), 1..=20).unwrap();
+        assert_eq!(sel.best, s, "true {s} states: {:?}", sel.clusters.k);
         assert_eq!(sel.clusters.k, s);
+        assert!(!sel.clusters.capped);
         assert_eq!(sel.clusters.labels.len(), data.total_frames());
-        assert!(sel.selection.failures.is_empty());
 
         // The fitted HMM has that many states, recovers every true mean
         // (within 0.3 for ~1200 frames of unit variance) and its BIC is the score.
@@ -91,11 +90,7 @@ fn gmeans_picks_the_true_number_of_hmm_states() {
                 .fold(f64::INFINITY, f64::min);
             assert!(nearest < 0.3, "{s} states, state {i}: {nearest}");
         }
-        assert_eq!(
-            sel.selection.scores,
-            vec![(s, model.bic(&data).unwrap())],
-            "{s} states"
-        );
+        assert_eq!(sel.bic, model.bic(&data).unwrap(), "{s} states");
         // The fit is the one the settings give for that K.
         let direct = bw.fit(&template(s).unwrap(), &data).unwrap();
         assert_eq!(
@@ -103,7 +98,7 @@ fn gmeans_picks_the_true_number_of_hmm_states() {
             "{s} states"
         );
         // BIC over a range agrees on these data.
-        let bic = select_hmm_states_bic(&bw, template, &data, 1..=s + 2).unwrap();
+        let bic = select_states_bic(&bw, template, &data, 1..=s + 2).unwrap();
         assert_eq!(bic.best, s);
     }
 }
@@ -113,7 +108,7 @@ fn gmeans_state_selection_reports_what_went_wrong() {
     let data = sample_set(&separated_hmm(3), 4, 60, 21);
     let bw = BaumWelch::default();
     // A template that cannot be built for the chosen K.
-    let err = select_hmm_states_gmeans(
+    let err = hmm_states_gmeans(
         &bw,
         |k| Gaussian::spherical(2, vec![0.0; 2 * k], vec![-1.0; k]),
         &data,
@@ -123,12 +118,12 @@ fn gmeans_state_selection_reports_what_went_wrong() {
     .unwrap_err();
     let msg = err.to_string();
     assert!(
-        matches!(err, GmmError::InvalidParameter { name: "states", .. }),
+        matches!(err, TscError::InvalidSetting { name: "states", .. }),
         "{err:?}"
     );
     assert!(msg.contains("G-means chose 3 states"), "{msg}");
     // A template of the wrong dimension: the fit fails and says why.
-    let msg = select_hmm_states_gmeans(
+    let msg = hmm_states_gmeans(
         &bw,
         |k| {
             Gaussian::standard(
@@ -148,7 +143,7 @@ fn gmeans_state_selection_reports_what_went_wrong() {
     assert!(msg.contains("G-means chose 3 states"), "{msg}");
     assert!(msg.contains("expected 3, found 2"), "{msg}");
     // max_k caps the number of states.
-    let capped = select_hmm_states_gmeans(
+    let capped = hmm_states_gmeans(
         &bw,
         template,
         &data,
@@ -156,15 +151,20 @@ fn gmeans_state_selection_reports_what_went_wrong() {
         1..=20,
     )
     .unwrap();
-    assert_eq!(capped.selection.best, 2);
+    assert_eq!(capped.best, 2);
+    assert!(
+        capped.clusters.capped,
+        "G-means was still splitting at max_k"
+    );
     assert_eq!(capped.fitted.model.n_states(), 2);
     // So does the range, and an empty range is refused.
-    let clamped = select_hmm_states_gmeans(&bw, template, &data, GMeans::default(), 1..=2).unwrap();
-    assert_eq!((clamped.clusters.k, clamped.selection.best), (3, 2));
+    let clamped = hmm_states_gmeans(&bw, template, &data, GMeans::default(), 1..=2).unwrap();
+    assert_eq!((clamped.clusters.k, clamped.best), (3, 2));
+    assert!(!clamped.clusters.capped);
     assert_eq!(clamped.fitted.model.n_states(), 2);
     #[allow(clippy::reversed_empty_ranges)] // the point of the test
     let empty = 3..=2;
-    assert!(select_hmm_states_gmeans(&bw, template, &data, GMeans::default(), empty).is_err());
+    assert!(hmm_states_gmeans(&bw, template, &data, GMeans::default(), empty).is_err());
     // Missing values: G-means counts the same clusters (on the complete frames).
     let mut holes: Vec<Vec<f64>> = data.iter().map(|s| s.as_slice().to_vec()).collect();
     for (k, v) in holes.iter_mut().flatten().enumerate() {
@@ -173,8 +173,8 @@ fn gmeans_state_selection_reports_what_went_wrong() {
         }
     }
     let holes = phasekit_emission::SequenceSet::new(&holes, 2).unwrap();
-    let sel = select_hmm_states_gmeans(&bw, template, &holes, GMeans::default(), 1..=20).unwrap();
-    assert_eq!(sel.selection.best, 3);
+    let sel = hmm_states_gmeans(&bw, template, &holes, GMeans::default(), 1..=20).unwrap();
+    assert_eq!(sel.best, 3);
     assert!(sel
         .fitted
         .model

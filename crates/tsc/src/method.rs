@@ -1,0 +1,431 @@
+//! A method with all its settings, and fitting it to demonstrations.
+
+use crate::cross_validation::cross_validate;
+use crate::error::{Result, TscError};
+use crate::hmm_settings::HmmSettings;
+use crate::krishnan::KrishnanSettings;
+use crate::model::Model;
+use crate::roles::Roles;
+use crate::summary::FitSummary;
+use crate::tsc_hmm::{TscHmm, TscSettings};
+use phasekit_emission::{CovarianceType, Emission, Gaussian, Regularisation, SequenceSet, Shape};
+use phasekit_gmm::{Em, Gmm};
+use serde::{Deserialize, Serialize};
+
+/// Settings of a static GMM (the `gmm` preset and the base of `gmm-tsc`),
+/// validated once by [`GmmSettingsBuilder::build`] (and on deserialisation).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(try_from = "GmmSettingsRaw")]
+pub struct GmmSettings {
+    components: usize,
+    reg: f64,
+    max_iter: usize,
+    tol: f64,
+    restarts: usize,
+    seed: u64,
+}
+
+/// The serialised form of [`GmmSettings`], before validation.
+#[derive(Deserialize)]
+struct GmmSettingsRaw {
+    components: usize,
+    reg: f64,
+    max_iter: usize,
+    tol: f64,
+    restarts: usize,
+    seed: u64,
+}
+
+impl TryFrom<GmmSettingsRaw> for GmmSettings {
+    type Error = TscError;
+    fn try_from(r: GmmSettingsRaw) -> Result<Self> {
+        GmmSettingsBuilder(GmmSettings {
+            components: r.components,
+            reg: r.reg,
+            max_iter: r.max_iter,
+            tol: r.tol,
+            restarts: r.restarts,
+            seed: r.seed,
+        })
+        .build()
+    }
+}
+
+impl Default for GmmSettings {
+    /// 4 components, `reg = 1e-2`, 100 iterations, tolerance `1e-3` on the mean
+    /// log-likelihood per frame, 3 k-means++ runs, seed 0 (the presets' GMM).
+    fn default() -> Self {
+        GmmSettings {
+            components: 4,
+            reg: 1e-2,
+            max_iter: 100,
+            tol: 1e-3,
+            restarts: 3,
+            seed: 0,
+        }
+    }
+}
+
+/// Builder of [`GmmSettings`]; [`GmmSettingsBuilder::build`] validates once.
+#[derive(Debug, Clone)]
+pub struct GmmSettingsBuilder(GmmSettings);
+
+impl GmmSettingsBuilder {
+    /// `k ≥ 1` components.
+    pub fn components(mut self, k: usize) -> Self {
+        self.0.components = k;
+        self
+    }
+    /// `r ≥ 0` added to the covariance diagonals after every M-step.
+    pub fn reg(mut self, reg: f64) -> Self {
+        self.0.reg = reg;
+        self
+    }
+    /// At most `n ≥ 1` M-steps.
+    pub fn max_iter(mut self, n: usize) -> Self {
+        self.0.max_iter = n;
+        self
+    }
+    /// Tolerance `≥ 0` on the gain of the mean log-likelihood per frame.
+    pub fn tol(mut self, tol: f64) -> Self {
+        self.0.tol = tol;
+        self
+    }
+    /// `n ≥ 1` runs from k-means++ seeds.
+    pub fn restarts(mut self, n: usize) -> Self {
+        self.0.restarts = n;
+        self
+    }
+    /// Seed of the first run (run `r` uses `seed + r`).
+    pub fn seed(mut self, seed: u64) -> Self {
+        self.0.seed = seed;
+        self
+    }
+    /// Validates the settings, naming the first bad one.
+    pub fn build(self) -> Result<GmmSettings> {
+        let s = self.0;
+        let bad = |name, reason: String| Err(TscError::InvalidSetting { name, reason });
+        if s.components == 0 {
+            return bad("states", "a mixture needs at least one component".into());
+        }
+        if s.max_iter == 0 {
+            return bad("max_iter", "at least one iteration is needed".into());
+        }
+        if s.restarts == 0 {
+            return bad("restarts", "at least one run is needed".into());
+        }
+        if !(s.reg.is_finite() && s.reg >= 0.0) {
+            return bad("reg", format!("must be a finite number ≥ 0, got {}", s.reg));
+        }
+        if !(s.tol.is_finite() && s.tol >= 0.0) {
+            return bad("tol", format!("must be a finite number ≥ 0, got {}", s.tol));
+        }
+        Ok(s)
+    }
+}
+
+impl GmmSettings {
+    /// A builder starting from [`GmmSettings::default`].
+    pub fn builder() -> GmmSettingsBuilder {
+        GmmSettingsBuilder(GmmSettings::default())
+    }
+    /// A builder starting from these settings (to change some of them).
+    pub fn to_builder(&self) -> GmmSettingsBuilder {
+        GmmSettingsBuilder(self.clone())
+    }
+    /// Components.
+    pub fn components(&self) -> usize {
+        self.components
+    }
+    /// `r` added to the covariance diagonals.
+    pub fn reg(&self) -> f64 {
+        self.reg
+    }
+    /// At most this many M-steps.
+    pub fn max_iter(&self) -> usize {
+        self.max_iter
+    }
+    /// Tolerance on the mean log-likelihood per frame.
+    pub fn tol(&self) -> f64 {
+        self.tol
+    }
+    /// Runs from k-means++ seeds.
+    pub fn restarts(&self) -> usize {
+        self.restarts
+    }
+    /// Seed.
+    pub fn seed(&self) -> u64 {
+        self.seed
+    }
+
+    /// The EM settings.
+    fn em(&self) -> Result<Em> {
+        Ok(Em::builder()
+            .max_iter(self.max_iter)
+            .tol(self.tol)
+            .regularisation(Regularisation::add_diagonal(self.reg)?)
+            .restarts(self.restarts)
+            .seed(self.seed)
+            .build()?)
+    }
+}
+
+/// A choice among candidate methods by K-fold cross-validated prediction error
+/// ([`crate::cross_validate`]), validated at construction (and on deserialisation).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(try_from = "CrossValidationRaw")]
+pub struct CrossValidation {
+    candidates: Vec<(String, Method)>,
+    folds: usize,
+}
+
+/// The serialised form of [`CrossValidation`], before validation.
+#[derive(Deserialize)]
+struct CrossValidationRaw {
+    candidates: Vec<(String, Method)>,
+    folds: usize,
+}
+
+impl TryFrom<CrossValidationRaw> for CrossValidation {
+    type Error = TscError;
+    fn try_from(r: CrossValidationRaw) -> Result<Self> {
+        CrossValidation::new(r.candidates, r.folds)
+    }
+}
+
+impl CrossValidation {
+    /// Chooses among `candidates` (label, method; at least one) by `folds ≥ 2`
+    /// folds of whole demonstrations (leave-one-demonstration-out when `folds`
+    /// is at least the number of demonstrations).
+    pub fn new(candidates: Vec<(String, Method)>, folds: usize) -> Result<Self> {
+        if candidates.is_empty() {
+            return Err(TscError::InvalidSetting {
+                name: "candidates",
+                reason: "no candidate to choose from".into(),
+            });
+        }
+        if folds < 2 {
+            return Err(TscError::InvalidSetting {
+                name: "folds",
+                reason: format!("at least 2 folds are needed, got {folds}"),
+            });
+        }
+        Ok(CrossValidation { candidates, folds })
+    }
+    /// The labels and methods to choose from.
+    pub fn candidates(&self) -> &[(String, Method)] {
+        &self.candidates
+    }
+    /// The number of folds.
+    pub fn folds(&self) -> usize {
+        self.folds
+    }
+}
+
+/// A method with all its settings; every setting was validated when built (or
+/// read), so a `Method` can be fitted as it is.
+///
+/// Not `#[non_exhaustive]` on purpose: a new method must be handled by every
+/// `match` of the workspace (the command's checks and reports).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "method", rename_all = "kebab-case")]
+pub enum Method {
+    /// HMM on joint frames, HMM-GMR.
+    Hmm(HmmSettings),
+    /// TSC-HMM.
+    TscHmm(TscSettings),
+    /// Krishnan-style TSC over a GMM, static GMR over the GMM and the kept transition clusters.
+    /// With an automatic frame mixture (`tsc.components() = None`) the GMM it extends takes
+    /// the number of components chosen for the frame mixture (`gmm.components()` is then unused).
+    GmmTsc {
+        /// The base mixture.
+        gmm: GmmSettings,
+        /// The TSC settings.
+        tsc: KrishnanSettings,
+    },
+    /// Static GMR.
+    Gmm(GmmSettings),
+    /// Chooses among candidates by K-fold cross-validated prediction error of
+    /// the robot's dims from the human's on the training demonstrations (folds of
+    /// whole demonstrations), then refits the winner on all of them.
+    CrossValidated(CrossValidation),
+}
+
+impl Method {
+    /// The fewest frames a demonstration needs for this method, and whether
+    /// per demonstration (HMM states: every demonstration needs one frame per
+    /// state) or in all (mixture components).
+    pub fn min_frames(&self) -> (usize, bool) {
+        match self {
+            Method::Hmm(s) => (s.min_states(), true),
+            Method::TscHmm(s) => (s.base().min_states(), true),
+            Method::Gmm(s) => (s.components(), false),
+            Method::GmmTsc { gmm, tsc } => {
+                (tsc.components().map_or(2, |_| gmm.components()), false)
+            }
+            Method::CrossValidated(cv) => cv
+                .candidates()
+                .iter()
+                .map(|(_, m)| m.min_frames())
+                .fold((0, false), |(n, p), (m, q)| (n.max(m), p || q)),
+        }
+    }
+
+    /// Fits the method to joint training sequences (NaN values are missing).
+    pub fn fit(&self, data: &SequenceSet, roles: &Roles) -> Result<(Model, FitSummary)> {
+        let (model, mut summary) = self.fit_inner(data, roles)?;
+        summary.missing_values = data.all_frames().missing_count();
+        Ok((model, summary))
+    }
+
+    fn fit_inner(&self, data: &SequenceSet, roles: &Roles) -> Result<(Model, FitSummary)> {
+        roles.check(data.dim())?;
+        match self {
+            Method::Hmm(s) => {
+                let clock = std::time::Instant::now();
+                let (hmm, r, selection) = s.fit_selected(data)?;
+                let mut summary = FitSummary::from_hmm(&r);
+                if let Some(sel) = selection {
+                    summary.fit_seconds = clock.elapsed().as_secs_f64();
+                    summary.with_selection(&sel);
+                }
+                Ok((Model::Hmm(hmm), summary))
+            }
+            Method::TscHmm(s) => {
+                let clock = std::time::Instant::now();
+                let (m, r) = TscHmm::fit(data, roles, s)?;
+                let mut summary = FitSummary::from_hmm(r.union.as_ref().unwrap_or(&r.base));
+                summary.fit_seconds = r.base.fit_seconds
+                    + r.transition.fit_seconds
+                    + r.union.as_ref().map_or(0.0, |u| u.fit_seconds);
+                if let Some(sel) = &r.selection {
+                    // The choice of λ's states costs one fit per candidate.
+                    summary.fit_seconds = clock.elapsed().as_secs_f64();
+                    summary.with_selection(sel);
+                }
+                summary.transition_segments = Some(r.segments);
+                Ok((
+                    Model::TscHmm {
+                        model: m,
+                        window: s.window(),
+                    },
+                    summary,
+                ))
+            }
+            Method::Gmm(s) => {
+                let f = s.em()?.fit(
+                    &Gaussian::standard(
+                        CovarianceType::Full,
+                        Shape {
+                            n_states: s.components(),
+                            dim: data.dim(),
+                        },
+                    )?,
+                    data.all_frames(),
+                )?;
+                Ok((Model::Gmm(f.model), FitSummary::from_gmm(&f.report)))
+            }
+            Method::CrossValidated(cv) => {
+                let clock = std::time::Instant::now();
+                let candidates = cv.candidates();
+                let scores = cross_validate(candidates, cv.folds(), data, roles)?;
+                let best = scores
+                    .iter()
+                    .enumerate()
+                    .filter_map(|(i, e)| e.as_ref().ok().map(|e| (i, *e)))
+                    .filter(|(_, e)| e.is_finite())
+                    .min_by(|a, b| a.1.total_cmp(&b.1))
+                    .map(|(i, _)| i);
+                let Some(best) = best else {
+                    return Err(TscError::NoCandidate {
+                        failures: candidates
+                            .iter()
+                            .zip(&scores)
+                            .map(|((label, _), s)| {
+                                let e = match s {
+                                    Err(e) => e.clone(),
+                                    Ok(v) => TscError::InvalidSetting {
+                                        name: "candidates",
+                                        reason: format!("cross-validated error {v} is not finite"),
+                                    },
+                                };
+                                (label.clone(), e)
+                            })
+                            .collect(),
+                    });
+                };
+                let (model, mut summary) = candidates[best].1.fit(data, roles)?;
+                summary.fit_seconds = clock.elapsed().as_secs_f64();
+                summary.chosen = Some(candidates[best].0.clone());
+                for ((label, _), s) in candidates.iter().zip(scores) {
+                    match s {
+                        Ok(e) => summary.cv_errors.push((label.clone(), e)),
+                        Err(e) => summary.cv_failures.push((label.clone(), e.to_string())),
+                    }
+                }
+                Ok((model, summary))
+            }
+            Method::GmmTsc { gmm, tsc } => {
+                let (ktsc, report) = tsc.fit(data)?;
+                let components = match tsc.components() {
+                    Some(_) => gmm.components(),
+                    None => ktsc.mixture().n_components(),
+                };
+                let base = gmm.em()?.fit(
+                    &Gaussian::standard(
+                        CovarianceType::Full,
+                        Shape {
+                            n_states: components,
+                            dim: data.dim(),
+                        },
+                    )?,
+                    data.all_frames(),
+                )?;
+                let joined = join_mixtures(&base.model, ktsc.transition_mixture(), ktsc.kept())?;
+                let f = gmm.em()?.fit_from(joined, data.all_frames())?;
+                let mut summary = FitSummary::from_gmm(&f.report);
+                summary.fit_seconds += base.report.fit_seconds;
+                if tsc.components().is_none() || tsc.transition_clusters().is_none() {
+                    let note = |a: &Option<crate::select::AutoCount>| {
+                        a.as_ref().map_or(String::new(), |a| a.lowered_note())
+                    };
+                    summary.chosen = Some(format!(
+                        "{} frame components ({}{}), {} transition clusters kept of {}{}",
+                        ktsc.mixture().n_components(),
+                        tsc.selector(),
+                        note(&report.frame_components),
+                        ktsc.reported_clusters().len(),
+                        ktsc.transition_mixture().n_components(),
+                        note(&report.transition_clusters),
+                    ));
+                }
+                Ok((
+                    Model::GmmTsc {
+                        tsc: ktsc,
+                        mixture: f.model,
+                    },
+                    summary,
+                ))
+            }
+        }
+    }
+}
+
+/// A mixture of `a`'s components and the `kept` components of `b`, weights in proportion.
+fn join_mixtures(a: &Gmm, b: &Gmm, kept: &[usize]) -> Result<Gmm> {
+    let (ga, gb, d) = (a.components(), b.components(), a.dim());
+    let mut means = ga.means().to_vec();
+    let mut covs = Vec::new();
+    let mut weights: Vec<f64> = a.weights().to_vec();
+    for k in 0..ga.n_states() {
+        covs.extend(ga.covariance(k).iter().copied());
+    }
+    for &k in kept {
+        means.extend_from_slice(gb.mean(k));
+        covs.extend(gb.covariance(k).iter().copied());
+        weights.push(b.weights()[k]);
+    }
+    let total: f64 = weights.iter().sum();
+    weights.iter_mut().for_each(|w| *w /= total);
+    Ok(Gmm::new(weights, Gaussian::full(d, means, covs)?)?)
+}

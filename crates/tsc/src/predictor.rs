@@ -1,0 +1,233 @@
+//! Predicting the robot's dims from the human's: over whole sequences
+//! ([`Predictor`]) and frame by frame for a control loop ([`OnlinePredictor`]).
+
+use crate::detect::select;
+use crate::error::Result;
+use crate::roles::Roles;
+use phasekit_emission::Frames;
+use phasekit_gmr::{FrameEvidence, GmmRegression, HmmRegression, OnlineRegression, Prediction};
+
+/// Predicts the robot's dims from the human's, over whole sequences, causally
+/// (made by `Model::predictor`).
+#[derive(Debug, Clone)]
+pub struct Predictor(PredictorKind);
+
+#[derive(Debug, Clone)]
+enum PredictorKind {
+    /// HMM-GMR (the baseline and the union compositions).
+    Hmm(HmmRegression),
+    /// `λ`'s GMR, replaced by `λ_T`'s where `λ_T` explains the human's frame
+    /// better (`λ_T`'s boxed: the variants stay of similar size).
+    Gated {
+        base: HmmRegression,
+        transition: Box<HmmRegression>,
+    },
+    /// Static GMR.
+    Gmm(GmmRegression),
+}
+
+impl Predictor {
+    /// HMM-GMR of one HMM.
+    pub fn hmm(r: HmmRegression) -> Self {
+        Predictor(PredictorKind::Hmm(r))
+    }
+
+    /// The likelihood gate of `λ`'s and `λ_T`'s HMM-GMR.
+    pub(crate) fn gated(base: HmmRegression, transition: HmmRegression) -> Self {
+        Predictor(PredictorKind::Gated {
+            base,
+            transition: Box::new(transition),
+        })
+    }
+
+    /// Static GMR of a mixture.
+    pub fn gmm(r: GmmRegression) -> Self {
+        Predictor(PredictorKind::Gmm(r))
+    }
+
+    /// Number of predicted dims.
+    pub fn n_out(&self) -> usize {
+        match &self.0 {
+            PredictorKind::Hmm(r) | PredictorKind::Gated { base: r, .. } => r.regression().n_out(),
+            PredictorKind::Gmm(r) => r.regression().n_out(),
+        }
+    }
+
+    /// Predicts a sequence of human frames (human dims only), causally.
+    pub fn predict(&self, human: Frames<'_>, with_covariance: bool) -> Result<Prediction> {
+        match &self.0 {
+            PredictorKind::Hmm(r) => Ok(r.predict(human, with_covariance)?),
+            PredictorKind::Gmm(r) => Ok(r.predict(human, with_covariance)?),
+            PredictorKind::Gated { base, transition } => {
+                let mut a = base.predict(human, with_covariance)?;
+                let b = transition.predict(human, with_covariance)?;
+                let la = base.input_model().forward(human)?;
+                let lb = transition.input_model().forward(human)?;
+                let o = a.n_out;
+                for (t, (x, y)) in la
+                    .log_normalisers()
+                    .iter()
+                    .zip(lb.log_normalisers())
+                    .enumerate()
+                {
+                    if y > x {
+                        a.mean[t * o..(t + 1) * o].copy_from_slice(&b.mean[t * o..(t + 1) * o]);
+                        if let (Some(ca), Some(cb)) = (a.covariance.as_mut(), b.covariance.as_ref())
+                        {
+                            ca[t * o * o..(t + 1) * o * o]
+                                .copy_from_slice(&cb[t * o * o..(t + 1) * o * o]);
+                        }
+                    }
+                }
+                Ok(a)
+            }
+        }
+    }
+
+    /// A frame-by-frame predictor.
+    pub fn online(&self) -> OnlinePredictor {
+        let o = self.n_out();
+        OnlinePredictor(match &self.0 {
+            PredictorKind::Hmm(r) => OnlineKind::Hmm(r.online()),
+            PredictorKind::Gated { base, transition } => OnlineKind::Gated {
+                base: base.online(),
+                transition: Box::new(transition.online()),
+                mean: vec![0.0; o],
+                covariance: vec![0.0; o * o],
+            },
+            PredictorKind::Gmm(r) => {
+                let k = r.regression().n_states();
+                OnlineKind::Gmm {
+                    regression: r.clone(),
+                    weights: vec![0.0; k],
+                    mean: vec![0.0; o],
+                    covariance: vec![0.0; o * o],
+                    scratch: vec![0.0; k * o],
+                }
+            }
+        })
+    }
+}
+
+/// Frame-by-frame prediction for a control loop; no allocation per frame
+/// (made by [`Predictor::online`]).
+#[derive(Debug, Clone)]
+pub struct OnlinePredictor(OnlineKind);
+
+#[derive(Debug, Clone)]
+enum OnlineKind {
+    /// Online HMM-GMR.
+    Hmm(OnlineRegression),
+    /// Two online HMM-GMRs and the likelihood gate; `mean` and `covariance`
+    /// hold the chosen one's (`λ_T`'s boxed: the variants stay of similar size).
+    Gated {
+        base: OnlineRegression,
+        transition: Box<OnlineRegression>,
+        mean: Vec<f64>,
+        covariance: Vec<f64>,
+    },
+    /// Static GMR, frame by frame: the responsibilities, mean and covariance
+    /// of the last frame, and scratch space.
+    Gmm {
+        regression: GmmRegression,
+        weights: Vec<f64>,
+        mean: Vec<f64>,
+        covariance: Vec<f64>,
+        scratch: Vec<f64>,
+    },
+}
+
+impl OnlinePredictor {
+    /// Takes one human frame and returns the predicted robot mean; with
+    /// `with_covariance` also updates [`OnlinePredictor::covariance`].
+    pub fn step(&mut self, human: &[f64], with_covariance: bool) -> Result<&[f64]> {
+        self.step_with_evidence(human, with_covariance)?;
+        Ok(self.mean())
+    }
+
+    /// [`OnlinePredictor::step`], returning what the frame told the model:
+    /// its log predictive density under the (base) model and whether no state
+    /// explains it (the frame was then not used; see `phasekit_gmr`). The
+    /// prediction is read with [`OnlinePredictor::mean`].
+    pub fn step_with_evidence(
+        &mut self,
+        human: &[f64],
+        with_covariance: bool,
+    ) -> Result<FrameEvidence> {
+        Ok(match &mut self.0 {
+            OnlineKind::Hmm(r) => {
+                if with_covariance {
+                    r.step_with_covariance(human)?;
+                } else {
+                    r.step(human)?;
+                }
+                r.evidence()
+            }
+            OnlineKind::Gated {
+                base,
+                transition,
+                mean,
+                covariance,
+            } => {
+                let (la, lb) = (base.log_likelihood(), transition.log_likelihood());
+                base.step_with_covariance(human)?;
+                transition.step_with_covariance(human)?;
+                let use_t = transition.log_likelihood() - lb > base.log_likelihood() - la;
+                let src = if use_t { &**transition } else { &*base };
+                mean.copy_from_slice(src.mean());
+                covariance.copy_from_slice(src.covariance());
+                base.evidence()
+            }
+            OnlineKind::Gmm {
+                regression,
+                weights,
+                mean,
+                covariance,
+                scratch,
+            } => regression.predict_one_into(
+                human,
+                weights,
+                mean,
+                with_covariance.then_some(&mut covariance[..]),
+                scratch,
+            )?,
+        })
+    }
+
+    /// Predicted robot mean of the last step, `O` values.
+    pub fn mean(&self) -> &[f64] {
+        match &self.0 {
+            OnlineKind::Hmm(r) => r.mean(),
+            OnlineKind::Gated { mean, .. } | OnlineKind::Gmm { mean, .. } => mean,
+        }
+    }
+
+    /// Predictive covariance of the last step (when requested), `O × O`.
+    pub fn covariance(&self) -> &[f64] {
+        match &self.0 {
+            OnlineKind::Hmm(r) => r.covariance(),
+            OnlineKind::Gated { covariance, .. } | OnlineKind::Gmm { covariance, .. } => covariance,
+        }
+    }
+
+    /// Starts a new demonstration.
+    pub fn reset(&mut self) {
+        match &mut self.0 {
+            OnlineKind::Hmm(r) => r.reset(),
+            OnlineKind::Gated {
+                base, transition, ..
+            } => {
+                base.reset();
+                transition.reset();
+            }
+            OnlineKind::Gmm { .. } => {}
+        }
+    }
+}
+
+/// The predictor's input: the human's dims of joint frames, `T × |human|`
+/// row-major; errors when the roles do not fit the frames' dimension.
+pub fn human_frames(seq: Frames<'_>, roles: &Roles) -> Result<Vec<f64>> {
+    roles.check(seq.dim())?;
+    Ok(select(seq, roles.human()))
+}

@@ -1,0 +1,203 @@
+//! What a fit did, in a form common to every method.
+
+use crate::hmm_settings::AutoStatesReport;
+use phasekit_emission::{MStepEvent, MStepReport};
+use phasekit_gmm::GmmFitReport;
+use phasekit_hmm::HmmFitReport;
+use serde::{Deserialize, Serialize};
+
+/// What a fit did, in a form common to every method (made by `Method::fit`;
+/// the command line writes it into the model file and the fit report).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[non_exhaustive]
+pub struct FitSummary {
+    /// M-steps of the model that predicts.
+    pub iterations: usize,
+    /// Its log-likelihood (summed over sequences or frames) at every E-step.
+    pub log_likelihood: Vec<f64>,
+    /// Why it stopped. Serialised as `"stop": "converged" | "max-iter" |
+    /// "log-likelihood fell"`; summaries written with the earlier `converged` and
+    /// `stopped_on_decrease` fields are read as the same reason.
+    #[serde(flatten, with = "stop_fields")]
+    pub stop: FitStop,
+    /// Wall-clock seconds of the whole fit.
+    pub fit_seconds: f64,
+    /// Largest diagonal jitter any M-step needed.
+    pub jitter: f64,
+    /// Number of transition segments, for TSC-HMMs.
+    pub transition_segments: Option<usize>,
+    /// What an automatic choice chose: the candidate chosen by
+    /// cross-validation, the number of states (`states=5 (BIC)`), or the
+    /// counts of `gmm-tsc` — with what bounded the candidates, if anything did.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub chosen: Option<String>,
+    /// Mean cross-validated squared prediction error of every candidate that
+    /// could be scored on every fold.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub cv_errors: Vec<(String, f64)>,
+    /// Every candidate of a cross-validation that could not be scored, and why.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub cv_failures: Vec<(String, String)>,
+    /// `(states, BIC)` of every candidate of an automatic choice of states.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub bic: Vec<(usize, f64)>,
+    /// Added to every covariance diagonal at every M-step (the `reg` setting; in
+    /// the features' units squared: m² for NuiSI, 1 for standardised features).
+    #[serde(default)]
+    pub regularisation: f64,
+    /// States (components) that received no weight in the last M-step and kept
+    /// their previous parameters: fewer states would do.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub empty_states: Vec<usize>,
+    /// States whose covariance was not positive definite at some M-step even
+    /// after the regularisation and got the `jitter` on its diagonal.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub jittered_states: Vec<usize>,
+    /// Values of the training data that were missing (NaN, an empty cell).
+    #[serde(default)]
+    pub missing_values: usize,
+    /// What looks wrong with the training data for this model (set by callers
+    /// that know the data's meaning, e.g. the command line).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub warnings: Vec<String>,
+}
+
+/// Why EM stopped.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum FitStop {
+    /// The gain of the log-likelihood fell below the tolerance.
+    #[serde(rename = "converged")]
+    Converged,
+    /// The iteration cap was reached first.
+    #[serde(rename = "max-iter")]
+    MaxIter,
+    /// The log-likelihood fell: the regularisation added after every M-step makes
+    /// EM non-monotone, and the protocol's tolerance test stops at the first fall.
+    #[serde(rename = "log-likelihood fell")]
+    LogLikelihoodFell,
+}
+
+impl FitStop {
+    /// The reason from the tolerance test's verdict and the log-likelihood trace.
+    pub fn from_trace(converged: bool, log_likelihood: &[f64]) -> Self {
+        match (converged, log_likelihood) {
+            (false, _) => FitStop::MaxIter,
+            (true, [.., a, b]) if b < a => FitStop::LogLikelihoodFell,
+            (true, _) => FitStop::Converged,
+        }
+    }
+}
+
+/// `stop` as its own field, read also from the `converged` / `stopped_on_decrease`
+/// pair of summaries written before it existed.
+mod stop_fields {
+    use super::FitStop;
+    use serde::{Deserialize, Deserializer, Serialize, Serializer};
+
+    #[derive(Serialize)]
+    struct Out {
+        stop: FitStop,
+    }
+
+    #[derive(Deserialize)]
+    struct In {
+        stop: Option<FitStop>,
+        converged: Option<bool>,
+        #[serde(default)]
+        stopped_on_decrease: bool,
+    }
+
+    pub fn serialize<S: Serializer>(stop: &FitStop, s: S) -> Result<S::Ok, S::Error> {
+        Out { stop: *stop }.serialize(s)
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<FitStop, D::Error> {
+        let i = In::deserialize(d)?;
+        match (i.stop, i.converged) {
+            (Some(stop), _) => Ok(stop),
+            (None, Some(false)) => Ok(FitStop::MaxIter),
+            (None, Some(true)) if i.stopped_on_decrease => Ok(FitStop::LogLikelihoodFell),
+            (None, Some(true)) => Ok(FitStop::Converged),
+            (None, None) => Err(serde::de::Error::missing_field("stop")),
+        }
+    }
+}
+
+impl FitSummary {
+    /// Records an automatic choice of the number of states.
+    pub(crate) fn with_selection(&mut self, sel: &AutoStatesReport) {
+        self.chosen = Some(sel.summary());
+        self.bic = sel.scores.clone();
+    }
+
+    /// The summary of an HMM fit.
+    pub(crate) fn from_hmm(r: &HmmFitReport) -> Self {
+        Self::from_parts(
+            r.iterations,
+            &r.log_likelihood,
+            r.converged,
+            r.fit_seconds,
+            &r.m_steps,
+        )
+    }
+
+    /// The summary of a mixture fit.
+    pub(crate) fn from_gmm(r: &GmmFitReport) -> Self {
+        Self::from_parts(
+            r.iterations,
+            &r.log_likelihood,
+            r.converged,
+            r.fit_seconds,
+            &r.m_steps,
+        )
+    }
+
+    fn from_parts(
+        iterations: usize,
+        log_likelihood: &[f64],
+        converged: bool,
+        fit_seconds: f64,
+        m_steps: &[MStepReport],
+    ) -> Self {
+        let mut jittered: Vec<usize> = m_steps
+            .iter()
+            .flat_map(|m| &m.events)
+            .filter_map(|e| match e {
+                MStepEvent::Jitter { state, .. } => Some(*state),
+                _ => None,
+            })
+            .collect();
+        jittered.sort_unstable();
+        jittered.dedup();
+        let mut empty: Vec<usize> = m_steps
+            .last()
+            .map(|m| {
+                m.events
+                    .iter()
+                    .filter_map(|e| match e {
+                        MStepEvent::KeptEmptyState { state, .. } => Some(*state),
+                        _ => None,
+                    })
+                    .collect()
+            })
+            .unwrap_or_default();
+        empty.dedup();
+        FitSummary {
+            iterations,
+            log_likelihood: log_likelihood.to_vec(),
+            stop: FitStop::from_trace(converged, log_likelihood),
+            fit_seconds,
+            jitter: m_steps.iter().map(|m| m.total_jitter()).fold(0.0, f64::max),
+            transition_segments: None,
+            chosen: None,
+            cv_errors: Vec::new(),
+            cv_failures: Vec::new(),
+            bic: Vec::new(),
+            regularisation: m_steps.iter().map(|m| m.added_diagonal).fold(0.0, f64::max),
+            empty_states: empty,
+            jittered_states: jittered,
+            missing_values: 0,
+            warnings: Vec::new(),
+        }
+    }
+}
