@@ -50,7 +50,11 @@ fn gaussian_hmm(h: &Hmm<AnyEmission>) -> Result<Hmm<Gaussian>> {
             h.emission().kind()
         ))
     })?;
-    Ok(Hmm::new(h.start().to_vec(), h.transition().to_vec(), g.clone())?)
+    Ok(Hmm::new(
+        h.start().to_vec(),
+        h.transition().to_vec(),
+        g.clone(),
+    )?)
 }
 
 /// A mixture as an HMM: `π = w`, every row of `A` equal to `w`, the
