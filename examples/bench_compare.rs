@@ -534,6 +534,9 @@ fn kernels() {
     }
 }
 
+/// A workload built only when its name passes the filter.
+type LazyWorkload = Box<dyn Fn() -> Option<HmmWorkload>>;
+
 fn main() {
     let args: Vec<String> = std::env::args().collect();
     match args.get(1).map(String::as_str) {
@@ -556,7 +559,7 @@ fn main() {
             let mut manifest = Vec::new();
             let mut results = Vec::new();
             // Workloads are built lazily, so that a FILTER skips the generation of the others.
-            let mut hmm_w: Vec<(String, Box<dyn Fn() -> Option<HmmWorkload>>)> = Vec::new();
+            let mut hmm_w: Vec<(String, LazyWorkload)> = Vec::new();
             for (c, dd) in [(Columns::AllJoints, 36), (Columns::Wrists, 12)] {
                 for k in [8, 15] {
                     hmm_w.push((

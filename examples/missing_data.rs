@@ -131,8 +131,8 @@ fn fit(train: &[Vec<f64>]) -> Hmm<Gaussian> {
 
 /// Every missing value replaced by the mean of its feature over `train`.
 fn mean_filled(seqs: &[Vec<f64>], train: &[Vec<f64>], dims: usize) -> Vec<Vec<f64>> {
-    let mut mean = vec![0.0; 12];
-    let mut n = vec![0.0; 12];
+    let mut mean = [0.0; 12];
+    let mut n = [0.0; 12];
     for f in train.iter().flat_map(|s| s.chunks_exact(12)) {
         for k in 0..12 {
             if !f[k].is_nan() {

@@ -17,6 +17,9 @@
 //!
 //! Every random choice comes from a seeded `ChaCha8Rng`; proptest runs from a
 //! fixed seed (override with `PROPTEST_RNG_SEED`).
+// The slow versions index several arrays by the same state or dimension, as
+// the formulas are written.
+#![allow(clippy::needless_range_loop)]
 
 use nalgebra::{DMatrix, DVector};
 use phasekit::emission::{

@@ -139,7 +139,7 @@ impl Checker {
 
     /// Matrices compared with `rtol` relative to the largest reference entry of each matrix.
     fn matrices(&mut self, what: &str, got: &[f64], want: &[f64], block: usize, rtol: f64) {
-        if got.len() != want.len() || want.len() % block != 0 {
+        if got.len() != want.len() || !want.len().is_multiple_of(block) {
             self.fail(format!(
                 "{what}: length {} vs fixture {}",
                 got.len(),

@@ -132,7 +132,7 @@ pub fn perturbed(g: &Gaussian, shift: f64, inflate: f64, rng: &mut ChaCha8Rng) -
         .iter()
         .enumerate()
         .map(|(k, c)| {
-            if k % (d * d) % (d + 1) == 0 {
+            if (k % (d * d)).is_multiple_of(d + 1) {
                 c + inflate
             } else {
                 *c

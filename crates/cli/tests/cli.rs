@@ -779,7 +779,7 @@ fn write_npy(path: &Path, rows: usize, cols: usize, data: &[f64]) {
     let mut header =
         format!("{{'descr': '<f8', 'fortran_order': False, 'shape': ({rows}, {cols}), }}");
     // Magic (6) + version (2) + length (2) + header, padded with spaces to 64, ending in \n.
-    while (10 + header.len() + 1) % 64 != 0 {
+    while !(10 + header.len() + 1).is_multiple_of(64) {
         header.push(' ');
     }
     header.push('\n');

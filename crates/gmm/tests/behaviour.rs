@@ -262,7 +262,7 @@ fn match_components(truth: &Truth, fitted: &Gmm) -> Vec<usize> {
         }
         for i in 0..n - 1 {
             visit(perm, n - 1, f);
-            if n % 2 == 0 {
+            if n.is_multiple_of(2) {
                 perm.swap(i, n - 1);
             } else {
                 perm.swap(0, n - 1);

@@ -795,7 +795,7 @@ fn check_dataset(ds: &Dataset) -> Result<()> {
             return bad(format!("action `{}` has no training demonstration", a.name));
         }
         for q in a.train.iter().chain(&a.test) {
-            if q.is_empty() || q.len() % ds.dim != 0 {
+            if q.is_empty() || !q.len().is_multiple_of(ds.dim) {
                 return bad(format!(
                     "action `{}`: a demonstration of {} values is not a whole number of {}-feature frames",
                     a.name,

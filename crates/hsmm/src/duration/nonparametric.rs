@@ -50,7 +50,7 @@ impl NonParametricDuration {
     /// Every row must be finite, non-negative and sum to 1 within `1e-8`
     /// (it is then renormalised; a row that sums to 1 up to rounding is kept bit for bit).
     pub fn new(max_duration: usize, pmf: Vec<f64>) -> Result<Self> {
-        if max_duration == 0 || pmf.is_empty() || pmf.len() % max_duration != 0 {
+        if max_duration == 0 || pmf.is_empty() || !pmf.len().is_multiple_of(max_duration) {
             check_shape(1, max_duration)?;
             return Err(invalid(
                 "pmf",
