@@ -1,6 +1,6 @@
 //! End-to-end tests of the `phasekit` command on generated interactions.
 
-mod common;
+use crate::common;
 
 use common::{interaction_folder, parse_csv, phasekit, plain};
 use phasekit_cli::data::{read_table, FeatureSpec, Velocity};

@@ -3,7 +3,7 @@
 //! every command that reads a model (predict, segment, stream, plot) uses it;
 //! a model file with no emission recorded is a full Gaussian.
 
-mod common;
+use crate::common;
 
 use common::{interaction_folder, model_json, parse_csv, parse_stream, phasekit, plain};
 use predicates::prelude::*;

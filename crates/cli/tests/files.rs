@@ -4,7 +4,7 @@
 //! quoting, huge cells, other delimiters, careless numbers, too many columns,
 //! and help whose examples can be copied.
 
-mod common;
+use crate::common;
 
 use common::{fit_model, interaction_folder, phasekit, plain};
 use predicates::prelude::*;

@@ -1,6 +1,6 @@
 //! `--json` is `--format json` on every command that prints for machines.
 
-mod common;
+use crate::common;
 
 use common::{interaction_folder, phasekit, plain};
 

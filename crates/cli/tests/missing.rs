@@ -3,7 +3,7 @@
 //! frames with nothing observed and keeps going (by default such a line stops
 //! the stream: see `tests/stream.rs`).
 
-mod common;
+use crate::common;
 
 use common::{interaction_folder, parse_csv, parse_stream, phasekit};
 use predicates::prelude::*;

@@ -5,7 +5,7 @@
 //! taken as not observed, and later frames are predicted and segmented as if
 //! it had been missing; a model whose means are 1e200 is refused.
 
-mod common;
+use crate::common;
 
 use common::{
     fit_model, interaction_folder, parse_csv, parse_stream, phasekit, plain, write_frames,

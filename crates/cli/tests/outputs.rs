@@ -6,7 +6,7 @@
 
 #![cfg(unix)]
 
-mod common;
+use crate::common;
 
 use common::{fit_model, interaction_folder, parse_csv, phasekit, phasekit_path, plain};
 use predicates::prelude::*;

@@ -2,7 +2,7 @@
 //! `recognise`, `stream` with a library, `plot recognition`, `evaluate --task
 //! recognition`, and their bad inputs.
 
-mod common;
+use crate::common;
 
 use common::{phasekit, plain, write_frames};
 use phasekit_tsc::synthetic::{generate_kind, Kind};

@@ -3,7 +3,7 @@
 //! never hide a failure (issue "What a researcher sees", "Plots and reports that
 //! mislead").
 
-mod common;
+use crate::common;
 
 use common::{interaction_folder, phasekit, plain};
 use predicates::prelude::*;

@@ -8,7 +8,7 @@
 //! README's copy differs; `PHASEKIT_UPDATE_README=1 cargo test -p phasekit-cli
 //! --test robustness` rewrites it.
 
-mod common;
+use crate::common;
 
 use common::{phasekit, write_frames};
 use phasekit_emission::{CovarianceType, Gaussian, Regularisation, SequenceSet};

@@ -3,7 +3,7 @@
 //! `--on-bad-line` says otherwise, every frame gives exactly one line with a
 //! status, and a frame no state explains does not derail the next ones.
 
-mod common;
+use crate::common;
 
 use common::{fit_model, interaction_folder, parse_stream, phasekit, plain};
 use predicates::prelude::*;

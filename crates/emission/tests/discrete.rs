@@ -1,6 +1,6 @@
 //! Categorical and Poisson emissions against direct formulas.
 
-mod common;
+use crate::common;
 
 use common::*;
 use phasekit_emission::{

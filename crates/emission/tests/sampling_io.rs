@@ -4,7 +4,7 @@
 // Index loops mirror the formulas they check (several arrays indexed alike).
 #![allow(clippy::needless_range_loop)]
 
-mod common;
+use crate::common;
 
 use common::*;
 use nalgebra::{DMatrix, DVector};

@@ -2,7 +2,7 @@
 //! likelihood `argmax Σ_d c(d) log p(d)`, checked by the moment conditions
 //! of the exponential families and by grids over the parameters.
 
-mod common;
+use crate::common;
 
 use common::*;
 use phasekit_hsmm::{

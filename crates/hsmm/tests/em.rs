@@ -3,7 +3,7 @@
 //! an inverse-Wishart prior, bit-identical on 1 and 4 threads, recovering
 //! known durations, and the checks of its settings and statistics.
 
-mod common;
+use crate::common;
 
 use common::*;
 use phasekit_emission::{CovarianceType, Gaussian, Regularisation, SequenceSet, Shape};

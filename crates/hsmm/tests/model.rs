@@ -1,6 +1,6 @@
 //! Construction, validation, serde and sampling of HSMMs.
 
-mod common;
+use crate::common;
 
 use common::*;
 use phasekit_emission::{Categorical, Emission, Frames, Gaussian, SequenceSet};

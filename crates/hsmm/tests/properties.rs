@@ -6,7 +6,7 @@
 //! Every model is drawn from a `ChaCha8Rng` seeded by proptest, and proptest
 //! runs from a fixed seed (override with `PROPTEST_RNG_SEED`).
 
-mod common;
+use crate::common;
 
 use common::*;
 use phasekit_emission::{Emission, Frames, Gaussian, Regularisation, SequenceSet};

@@ -2,7 +2,7 @@
 //! prediction experiment's prediction on the same subsets, and its tables
 //! hold what they say.
 
-mod common;
+use crate::common;
 
 use common::{demos, hmm, roles};
 use phasekit_emission::{Frames, SequenceSet};

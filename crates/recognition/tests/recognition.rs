@@ -1,7 +1,7 @@
 //! Recognition on generated interactions with known actions: accuracy, the
 //! oracle, unknown motions, the composed HMM, the file round trip and bad inputs.
 
-mod common;
+use crate::common;
 
 use common::{demos, fit, human, library, library_without_wave, roles};
 use phasekit_emission::{Frames, SequenceSet};

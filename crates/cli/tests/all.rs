@@ -1,0 +1,18 @@
+//! Every integration test of this package, compiled as one binary: one link
+//! instead of one per file keeps the test command inside its time budget.
+//! Each file stays a module of its own; add a `mod` line for a new one.
+
+mod common;
+mod cli;
+mod emission;
+mod files;
+mod hostile_input;
+mod json_flag;
+mod missing;
+mod novelty;
+mod outputs;
+mod protocol;
+mod recognition_cli;
+mod reports;
+mod robustness;
+mod stream;

@@ -1,0 +1,5 @@
+//! Every integration test of this package, compiled as one binary: one link
+//! instead of one per file keeps the test command inside its time budget.
+//! Each file stays a module of its own; add a `mod` line for a new one.
+
+mod state_selection;
