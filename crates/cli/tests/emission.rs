@@ -308,3 +308,28 @@ fn gmm_2_at_the_command_line_reaches_hmmlearns_gmmhmm_and_beats_one_gaussian() {
         "gmm-2 {gmm2} not clearly above full {full}"
     );
 }
+
+#[test]
+fn the_fit_report_names_the_emission_in_every_format() {
+    let (dir, data) = interaction_folder(6, 5, 6, plain);
+    for (method, name) in [("hmm", "student-t"), ("tsc-hmm", "diag"), ("hmm", "full")] {
+        let model = dir.path().join(format!("report-{method}-{name}.json"));
+        let json = stdout(
+            phasekit()
+                .args(["fit", "--method", method, "--emission", name, "--format", "json"])
+                .arg("--data")
+                .arg(&data)
+                .arg("-o")
+                .arg(&model),
+        );
+        let j: serde_json::Value = serde_json::from_str(&json).unwrap();
+        assert_eq!(j["emission"], name, "{method}: {json}");
+        let md = stdout(
+            phasekit()
+                .args(["fit", "--method", method, "--emission", name, "--format", "md"])
+                .arg("--data")
+                .arg(&data),
+        );
+        assert!(md.contains(&format!("| emission | {name} |")), "{md}");
+    }
+}

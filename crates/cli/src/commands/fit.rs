@@ -9,7 +9,7 @@ use crate::experiment::parse_method;
 use crate::model_file::{MethodInfo, ModelFile, Standardisation};
 use crate::output;
 use phasekit_emission::SequenceSet;
-use phasekit_tsc::{FitStop, FitSummary, PresetOptions, Roles};
+use phasekit_tsc::{EmissionKind, FitStop, FitSummary, Model, PresetOptions, Roles};
 use serde::Serialize;
 use std::path::PathBuf;
 
@@ -20,6 +20,9 @@ pub struct FitReport {
     pub method: String,
     /// Total states (components) of the model that predicts.
     pub states: usize,
+    /// The emission of every state (`full`, `diag`, `student-t`, `gmm-2`, …),
+    /// as the model file records it.
+    pub emission: String,
     /// Training files.
     pub demonstrations: Vec<PathBuf>,
     /// Training frames.
@@ -50,6 +53,7 @@ impl FitReport {
         let mut r = FitReport {
             method: mf.method.spec.clone(),
             states: mf.n_states(),
+            emission: emission_name(&mf.model),
             demonstrations,
             frames,
             features: mf.layout.features.clone(),
@@ -60,6 +64,16 @@ impl FitReport {
         };
         r.notes = notes(&r.fit);
         r
+    }
+}
+
+/// The emission of every state of `model`, by its `--emission` name.
+pub fn emission_name(model: &Model) -> String {
+    match model {
+        Model::Hmm(h) => h.emission().kind().to_string(),
+        Model::TscHmm { model, .. } => model.base().emission().kind().to_string(),
+        // The mixture presets fit full-covariance Gaussian components.
+        Model::Gmm(_) | Model::GmmTsc { .. } => EmissionKind::default().to_string(),
     }
 }
 
@@ -248,10 +262,11 @@ pub fn run(a: &FitArgs) -> Result<()> {
 
 fn summary_line(r: &FitReport) -> String {
     format!(
-        "phasekit: fitted {}{} ({} states) to {} demonstrations ({} frames, {} features) in {:.2} s: {} EM iterations, {}{}",
+        "phasekit: fitted {}{} ({} states, {} emissions) to {} demonstrations ({} frames, {} features) in {:.2} s: {} EM iterations, {}{}",
         r.method,
         r.fit.chosen.as_ref().map(|c| format!(" (chose {c})")).unwrap_or_default(),
         r.states,
+        r.emission,
         r.demonstrations.len(),
         r.frames,
         r.features.len(),
@@ -315,6 +330,7 @@ fn markdown(r: &FitReport) -> String {
     for (k, v) in [
         ("method", r.method.clone()),
         ("states", r.states.to_string()),
+        ("emission", r.emission.clone()),
         ("demonstrations", r.demonstrations.len().to_string()),
         ("frames", r.frames.to_string()),
         ("features", r.features.join(", ")),
