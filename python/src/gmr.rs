@@ -72,7 +72,12 @@ impl GmrCore {
     /// of the input marginal.
     #[staticmethod]
     fn from_gmm(gmm: &GmmCore, input: Vec<usize>, output: Vec<usize>) -> PyResult<Self> {
-        let r = GmmRegression::new(&gmm.model, &input, &output).map_err(value_error)?;
+        let any = phasekit::gmm::Gmm::new(
+            gmm.model.weights().to_vec(),
+            phasekit::tsc::AnyEmission::Gaussian(gmm.model.components().clone()),
+        )
+        .map_err(value_error)?;
+        let r = GmmRegression::new(&any, &input, &output).map_err(value_error)?;
         Ok(GmrCore {
             predictor: Predictor::gmm(r),
             n_in: input.len(),

@@ -275,7 +275,7 @@ pub struct ModelArgs {
     /// Seed of every random choice of the fit
     #[arg(long, value_name = "N", default_value_t = 0)]
     pub seed: u64,
-    /// Emission of every HMM state: full (default), diag, spherical, tied (Gaussians),
+    /// Emission of every HMM state or mixture component: full (default), diag, spherical, tied (Gaussians),
     /// student-t (robust to outlying frames), gmm-K (K full Gaussians per state, e.g. gmm-2)
     #[arg(long, value_name = "NAME", default_value = "full", value_parser = parse_emission)]
     pub emission: phasekit_tsc::EmissionKind,

@@ -167,17 +167,42 @@ fn the_emission_key_and_flag_agree_and_bad_names_are_refused() {
             .stderr(predicate::str::contains("emission"));
     }
     assert!(!dir.path().join("bad.json").exists());
-    // The mixtures of gmm and gmm-tsc are full Gaussians: another emission is
-    // an error naming the flag, not a silent full Gaussian.
+    // gmm and gmm-tsc take the emission too: their mixtures' components are
+    // of it, and the model file says so.
     for method in ["gmm", "gmm-tsc"] {
-        phasekit()
-            .args(["fit", "--method", method, "--emission", "gmm-2", "--data"])
-            .arg(&data)
-            .arg("-o")
-            .arg(dir.path().join("bad.json"))
-            .assert()
-            .failure()
-            .stderr(predicate::str::contains("--emission"));
+        let model = dir.path().join(format!("{method}-student-t.json"));
+        fit(
+            &data,
+            &model,
+            &["--method", method, "--emission", "student-t"],
+        );
+        let j = model_json(&model);
+        let (settings, mixture) = if method == "gmm" {
+            (&j["method"]["settings"], &j["model"]["components"])
+        } else {
+            (
+                &j["method"]["settings"]["gmm"],
+                &j["model"]["mixture"]["components"],
+            )
+        };
+        assert_eq!(settings["emission"], "student-t", "{method}: {settings}");
+        assert_eq!(mixture["emission"], "student-t", "{method}: {mixture}");
+        if method == "gmm-tsc" {
+            assert_eq!(j["method"]["settings"]["tsc"]["emission"], "student-t");
+            assert_eq!(
+                j["model"]["tsc"]["mixture"]["components"]["emission"],
+                "student-t"
+            );
+        }
+        let test = data.join("test_00.csv");
+        let predicted = stdout(
+            phasekit()
+                .args(["predict", "--model"])
+                .arg(&model)
+                .arg("--data")
+                .arg(&test),
+        );
+        assert!(predicted.lines().count() > 2, "{method}: {predicted}");
     }
 }
 
@@ -312,11 +337,25 @@ fn gmm_2_at_the_command_line_reaches_hmmlearns_gmmhmm_and_beats_one_gaussian() {
 #[test]
 fn the_fit_report_names_the_emission_in_every_format() {
     let (dir, data) = interaction_folder(6, 5, 6, plain);
-    for (method, name) in [("hmm", "student-t"), ("tsc-hmm", "diag"), ("hmm", "full")] {
+    for (method, name) in [
+        ("hmm", "student-t"),
+        ("tsc-hmm", "diag"),
+        ("hmm", "full"),
+        ("gmm", "student-t"),
+        ("gmm-tsc", "diag"),
+    ] {
         let model = dir.path().join(format!("report-{method}-{name}.json"));
         let json = stdout(
             phasekit()
-                .args(["fit", "--method", method, "--emission", name, "--format", "json"])
+                .args([
+                    "fit",
+                    "--method",
+                    method,
+                    "--emission",
+                    name,
+                    "--format",
+                    "json",
+                ])
                 .arg("--data")
                 .arg(&data)
                 .arg("-o")
@@ -326,7 +365,15 @@ fn the_fit_report_names_the_emission_in_every_format() {
         assert_eq!(j["emission"], name, "{method}: {json}");
         let md = stdout(
             phasekit()
-                .args(["fit", "--method", method, "--emission", name, "--format", "md"])
+                .args([
+                    "fit",
+                    "--method",
+                    method,
+                    "--emission",
+                    name,
+                    "--format",
+                    "md",
+                ])
                 .arg("--data")
                 .arg(&data),
         );

@@ -61,10 +61,18 @@ fn gaussian_hmm(h: &Hmm<AnyEmission>) -> Result<Hmm<Gaussian>> {
 /// components as emissions. Its predicted state distribution is `w` at every
 /// frame, so its filtered belief is the mixture's responsibilities and
 /// `log p(x_{1:T}) = Σ_t log Σ_k w_k N(x_t; μ_k, Σ_k)`.
-pub fn mixture_as_hmm(g: &Gmm) -> Result<Hmm<Gaussian>> {
+/// An error for components other than Gaussians, as [`action_hmm`] says.
+pub fn mixture_as_hmm(g: &Gmm<AnyEmission>) -> Result<Hmm<Gaussian>> {
+    let components = g.components().as_gaussian().ok_or_else(|| {
+        RecognitionError::InvalidLibrary(format!(
+            "an action's mixture components are `{}`: a library of interactions takes Gaussian \
+             emissions (full, diag, spherical, tied) for now",
+            g.components().kind()
+        ))
+    })?;
     let w = g.weights().to_vec();
     let rows = (0..w.len()).flat_map(|_| w.iter().copied()).collect();
-    Ok(Hmm::new(w, rows, g.components().clone())?)
+    Ok(Hmm::new(w, rows, components.clone())?)
 }
 
 /// One action's online prediction and likelihood. No allocation per frame.

@@ -17,9 +17,10 @@
 //!    transition clusters.
 
 use crate::detect::{label_changes, Labeller, MixtureLabeller};
+use crate::emission_choice::{AnyEmission, EmissionKind};
 use crate::error::{NoTransitionCause, Result, TscError};
 use crate::segmentation::Segmentation;
-use crate::select::{check_range, mixture_components, AutoCount, Selector};
+use crate::select::{check_range, mixture_components_of, AutoCount, Selector};
 use phasekit_emission::{CovarianceType, Frames, Gaussian, Regularisation, SequenceSet, Shape};
 use phasekit_gmm::{select_mixture_bic, Em, Gmm};
 use serde::{Deserialize, Serialize};
@@ -107,6 +108,10 @@ pub struct KrishnanSettings {
     reg: f64,
     restarts: usize,
     seed: u64,
+    /// The emission of every mixture component (full Gaussians by default;
+    /// not written then, so that older files and new ones agree).
+    #[serde(default, skip_serializing_if = "EmissionKind::is_default")]
+    emission: EmissionKind,
 }
 
 /// The serialised form of [`KrishnanSettings`], before validation (the field
@@ -126,6 +131,8 @@ struct KrishnanSettingsRaw {
     reg: f64,
     restarts: usize,
     seed: u64,
+    #[serde(default)]
+    emission: EmissionKind,
 }
 
 impl TryFrom<KrishnanSettingsRaw> for KrishnanSettings {
@@ -143,6 +150,7 @@ impl TryFrom<KrishnanSettingsRaw> for KrishnanSettings {
             reg: r.reg,
             restarts: r.restarts,
             seed: r.seed,
+            emission: r.emission,
         })
         .build()
     }
@@ -165,6 +173,7 @@ impl Default for KrishnanSettings {
             reg: 1e-2,
             restarts: 3,
             seed: 0,
+            emission: EmissionKind::default(),
         }
     }
 }
@@ -229,6 +238,13 @@ impl KrishnanSettingsBuilder {
     /// Seed of every mixture fit.
     pub fn seed(mut self, seed: u64) -> Self {
         self.0.seed = seed;
+        self
+    }
+
+    /// The emission of the frame mixture's and the transition mixture's
+    /// components (the `emission=` key; the time sub-clusters stay 1-D Gaussians).
+    pub fn emission(mut self, emission: EmissionKind) -> Self {
+        self.0.emission = emission;
         self
     }
     /// Checks every setting (not the data): window in `1..=MAX_WINDOW`, `ρ ∈ [0, 1]`,
@@ -314,8 +330,8 @@ impl TimeSubclusters {
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(try_from = "KrishnanTscRaw")]
 pub struct KrishnanTsc {
-    mixture: Gmm,
-    transition_mixture: Gmm,
+    mixture: Gmm<AnyEmission>,
+    transition_mixture: Gmm<AnyEmission>,
     kept: Vec<usize>,
     window: usize,
     min_run: usize,
@@ -326,8 +342,8 @@ pub struct KrishnanTsc {
 /// The serialised form of [`KrishnanTsc`], before validation.
 #[derive(Deserialize)]
 struct KrishnanTscRaw {
-    mixture: Gmm,
-    transition_mixture: Gmm,
+    mixture: Gmm<AnyEmission>,
+    transition_mixture: Gmm<AnyEmission>,
     kept: Vec<usize>,
     window: usize,
     min_run: usize,
@@ -444,6 +460,11 @@ impl KrishnanSettings {
         self.seed
     }
 
+    /// The emission of the mixtures' components.
+    pub fn emission(&self) -> EmissionKind {
+        self.emission
+    }
+
     fn em(&self) -> Result<Em> {
         Ok(Em::builder()
             .regularisation(Regularisation::add_diagonal(self.reg)?)
@@ -459,11 +480,12 @@ impl KrishnanSettings {
         frames: Frames<'_>,
         k: Option<usize>,
         min_auto: usize,
-    ) -> Result<(Gmm, Option<AutoCount>)> {
+    ) -> Result<(Gmm<AnyEmission>, Option<AutoCount>)> {
         let em = self.em()?;
         let auto = match k {
             Some(_) => None,
-            None => Some(mixture_components(
+            None => Some(mixture_components_of(
+                self.emission,
                 self.selector,
                 &em,
                 frames,
@@ -472,16 +494,7 @@ impl KrishnanSettings {
         };
         let k = auto.as_ref().map_or(k.unwrap_or(1), |a| a.count);
         let model = em
-            .fit(
-                &Gaussian::standard(
-                    CovarianceType::Full,
-                    Shape {
-                        n_states: k,
-                        dim: frames.dim(),
-                    },
-                )?,
-                frames,
-            )?
+            .fit(&self.emission.template(k, frames.dim())?, frames)?
             .model;
         Ok((model, auto))
     }
@@ -650,11 +663,11 @@ impl KrishnanTsc {
     }
 
     /// Mixture over (windowed) frames.
-    pub fn mixture(&self) -> &Gmm {
+    pub fn mixture(&self) -> &Gmm<AnyEmission> {
         &self.mixture
     }
     /// Mixture over transition states (un-windowed frames).
-    pub fn transition_mixture(&self) -> &Gmm {
+    pub fn transition_mixture(&self) -> &Gmm<AnyEmission> {
         &self.transition_mixture
     }
     /// Transition clusters kept after pruning (components of the transition mixture).

@@ -1,6 +1,7 @@
 //! A method with all its settings, and fitting it to demonstrations.
 
 use crate::cross_validation::cross_validate;
+use crate::emission_choice::{AnyEmission, EmissionKind};
 use crate::error::{Result, TscError};
 use crate::hmm_settings::HmmSettings;
 use crate::krishnan::KrishnanSettings;
@@ -8,8 +9,10 @@ use crate::model::Model;
 use crate::roles::Roles;
 use crate::summary::FitSummary;
 use crate::tsc_hmm::{TscHmm, TscSettings};
-use phasekit_emission::{CovarianceType, Emission, Gaussian, Regularisation, SequenceSet, Shape};
+use phasekit_emission::{CovarianceType, Emission, Frames, Gaussian, Regularisation, SequenceSet};
 use phasekit_gmm::{Em, Gmm};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
 /// Settings of a static GMM (the `gmm` preset and the base of `gmm-tsc`),
@@ -23,6 +26,10 @@ pub struct GmmSettings {
     tol: f64,
     restarts: usize,
     seed: u64,
+    /// The emission of every component (full Gaussians by default; not
+    /// written then, so that older files and new ones agree).
+    #[serde(default, skip_serializing_if = "EmissionKind::is_default")]
+    emission: EmissionKind,
 }
 
 /// The serialised form of [`GmmSettings`], before validation.
@@ -34,6 +41,8 @@ struct GmmSettingsRaw {
     tol: f64,
     restarts: usize,
     seed: u64,
+    #[serde(default)]
+    emission: EmissionKind,
 }
 
 impl TryFrom<GmmSettingsRaw> for GmmSettings {
@@ -46,6 +55,7 @@ impl TryFrom<GmmSettingsRaw> for GmmSettings {
             tol: r.tol,
             restarts: r.restarts,
             seed: r.seed,
+            emission: r.emission,
         })
         .build()
     }
@@ -62,6 +72,7 @@ impl Default for GmmSettings {
             tol: 1e-3,
             restarts: 3,
             seed: 0,
+            emission: EmissionKind::default(),
         }
     }
 }
@@ -99,6 +110,11 @@ impl GmmSettingsBuilder {
     /// Seed of the first run (run `r` uses `seed + r`).
     pub fn seed(mut self, seed: u64) -> Self {
         self.0.seed = seed;
+        self
+    }
+    /// The emission of every component (the `emission=` key).
+    pub fn emission(mut self, emission: EmissionKind) -> Self {
+        self.0.emission = emission;
         self
     }
     /// Validates the settings, naming the first bad one.
@@ -156,6 +172,10 @@ impl GmmSettings {
     /// Seed.
     pub fn seed(&self) -> u64 {
         self.seed
+    }
+    /// The emission of every component.
+    pub fn emission(&self) -> EmissionKind {
+        self.emission
     }
 
     /// The EM settings.
@@ -314,13 +334,7 @@ impl Method {
             }
             Method::Gmm(s) => {
                 let f = s.em()?.fit(
-                    &Gaussian::standard(
-                        CovarianceType::Full,
-                        Shape {
-                            n_states: s.components(),
-                            dim: data.dim(),
-                        },
-                    )?,
+                    &s.emission.template(s.components(), data.dim())?,
                     data.all_frames(),
                 )?;
                 Ok((Model::Gmm(f.model), FitSummary::from_gmm(&f.report)))
@@ -371,18 +385,17 @@ impl Method {
                     Some(_) => gmm.components(),
                     None => ktsc.mixture().n_components(),
                 };
-                let base = gmm.em()?.fit(
-                    &Gaussian::standard(
-                        CovarianceType::Full,
-                        Shape {
-                            n_states: components,
-                            dim: data.dim(),
-                        },
-                    )?,
-                    data.all_frames(),
+                let em = gmm.em()?;
+                let frames = data.all_frames();
+                let base = em.fit(&gmm.emission.template(components, data.dim())?, frames)?;
+                let joined = join_mixtures(
+                    &base.model,
+                    ktsc.transition_mixture(),
+                    ktsc.kept(),
+                    &em,
+                    frames,
                 )?;
-                let joined = join_mixtures(&base.model, ktsc.transition_mixture(), ktsc.kept())?;
-                let f = gmm.em()?.fit_from(joined, data.all_frames())?;
+                let f = em.fit_from(joined, frames)?;
                 let mut summary = FitSummary::from_gmm(&f.report);
                 summary.fit_seconds += base.report.fit_seconds;
                 if tsc.components().is_none() || tsc.transition_clusters().is_none() {
@@ -411,21 +424,92 @@ impl Method {
     }
 }
 
-/// A mixture of `a`'s components and the `kept` components of `b`, weights in proportion.
-fn join_mixtures(a: &Gmm, b: &Gmm, kept: &[usize]) -> Result<Gmm> {
-    let (ga, gb, d) = (a.components(), b.components(), a.dim());
+/// The starting mixture of `gmm-tsc`: `a`'s components and the `kept`
+/// components of `b`.
+///
+/// Gaussian components are joined as they are, with the mixture weights in
+/// proportion: `π = (π_a, π_b[kept]) / Σ`. Other emissions cannot be
+/// concatenated in general, so the joined mixture's responsibilities of the
+/// frames, `r_tj ∝ π_j p_j(x_t)` over the same `K_a + |kept|` components, start
+/// one initialisation of that many components of `a`'s emission
+/// ([`Emission::initialise`]); EM then runs from it as from the Gaussian join.
+fn join_mixtures(
+    a: &Gmm<AnyEmission>,
+    b: &Gmm<AnyEmission>,
+    kept: &[usize],
+    em: &Em,
+    frames: Frames<'_>,
+) -> Result<Gmm<AnyEmission>> {
+    if let (Some(ga), Some(gb)) = (a.components().as_gaussian(), b.components().as_gaussian()) {
+        if ga.covariance_type() == CovarianceType::Full
+            && gb.covariance_type() == CovarianceType::Full
+        {
+            return join_gaussian_mixtures(a.weights(), ga, b.weights(), gb, kept);
+        }
+    }
+    let (n, ka) = (frames.len(), a.n_components());
+    let k = ka + kept.len();
+    let (la, lb) = (
+        a.components().log_density(frames)?,
+        b.components().log_density(frames)?,
+    );
+    let kb = b.n_components();
+    let mut r = vec![0.0; n * k];
+    for t in 0..n {
+        let row = &mut r[t * k..(t + 1) * k];
+        for j in 0..ka {
+            row[j] = a.weights()[j].ln() + la[t * ka + j];
+        }
+        for (j, &c) in kept.iter().enumerate() {
+            row[ka + j] = b.weights()[c].ln() + lb[t * kb + c];
+        }
+        let top = row.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        if top.is_finite() {
+            row.iter_mut().for_each(|v| *v = (*v - top).exp());
+        } else {
+            // A frame no component explains: spread it evenly.
+            row.iter_mut().for_each(|v| *v = 1.0);
+        }
+        let total: f64 = row.iter().sum();
+        row.iter_mut().for_each(|v| *v /= total);
+    }
+    let mut counts = vec![0.0; k];
+    for row in r.chunks_exact(k) {
+        counts.iter_mut().zip(row).for_each(|(c, v)| *c += v);
+    }
+    let template = a.components().kind().template(k, a.dim())?;
+    let mut rng = ChaCha8Rng::seed_from_u64(em.seed());
+    let (components, _) = template.initialise(&[(frames, &r)], em.regularisation(), &mut rng)?;
+    Ok(Gmm::new(
+        counts.iter().map(|c| c / n as f64).collect(),
+        components,
+    )?)
+}
+
+/// [`join_mixtures`] of full-covariance Gaussian components, weights in proportion.
+fn join_gaussian_mixtures(
+    wa: &[f64],
+    ga: &Gaussian,
+    wb: &[f64],
+    gb: &Gaussian,
+    kept: &[usize],
+) -> Result<Gmm<AnyEmission>> {
+    let d = ga.dim();
     let mut means = ga.means().to_vec();
     let mut covs = Vec::new();
-    let mut weights: Vec<f64> = a.weights().to_vec();
+    let mut weights: Vec<f64> = wa.to_vec();
     for k in 0..ga.n_states() {
         covs.extend(ga.covariance(k).iter().copied());
     }
     for &k in kept {
         means.extend_from_slice(gb.mean(k));
         covs.extend(gb.covariance(k).iter().copied());
-        weights.push(b.weights()[k]);
+        weights.push(wb[k]);
     }
     let total: f64 = weights.iter().sum();
     weights.iter_mut().for_each(|w| *w /= total);
-    Ok(Gmm::new(weights, Gaussian::full(d, means, covs)?)?)
+    Ok(Gmm::new(
+        weights,
+        AnyEmission::Gaussian(Gaussian::full(d, means, covs)?),
+    )?)
 }

@@ -34,13 +34,13 @@ pub enum Model {
         window: usize,
     },
     /// A GMM on joint frames.
-    Gmm(Gmm),
+    Gmm(Gmm<AnyEmission>),
     /// Krishnan TSC and the joined mixture that predicts.
     GmmTsc {
         /// The TSC.
         tsc: KrishnanTsc,
         /// The GMM plus kept transition clusters.
-        mixture: Gmm,
+        mixture: Gmm<AnyEmission>,
     },
 }
 
@@ -49,9 +49,15 @@ pub enum Model {
 #[serde(tag = "kind", rename_all = "kebab-case")]
 enum ModelRaw {
     Hmm(Hmm<AnyEmission>),
-    TscHmm { model: TscHmm, window: usize },
-    Gmm(Gmm),
-    GmmTsc { tsc: KrishnanTsc, mixture: Gmm },
+    TscHmm {
+        model: TscHmm,
+        window: usize,
+    },
+    Gmm(Gmm<AnyEmission>),
+    GmmTsc {
+        tsc: KrishnanTsc,
+        mixture: Gmm<AnyEmission>,
+    },
 }
 
 impl TryFrom<ModelRaw> for Model {

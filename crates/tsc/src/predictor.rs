@@ -6,10 +6,11 @@ use crate::emission_choice::AnyEmission;
 use crate::error::Result;
 use crate::roles::Roles;
 use phasekit_emission::Frames;
-use phasekit_gmr::{FrameEvidence, GmmRegression, Prediction};
+use phasekit_gmr::{FrameEvidence, Prediction};
 
 type HmmRegression = phasekit_gmr::HmmRegression<AnyEmission>;
 type OnlineRegression = phasekit_gmr::OnlineRegression<AnyEmission>;
+type GmmRegression = phasekit_gmr::GmmRegression<AnyEmission>;
 
 /// Predicts the robot's dims from the human's, over whole sequences, causally
 /// (made by `Model::predictor`).

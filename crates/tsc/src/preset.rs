@@ -299,8 +299,8 @@ impl PresetOptionsBuilder {
         self.0.seed = seed;
         self
     }
-    /// The emission of every HMM state (the HMM presets; `gmm` and `gmm-tsc`
-    /// have full Gaussians only).
+    /// The emission of every HMM state (the HMM presets) or mixture component
+    /// (`gmm`, `gmm-tsc`).
     pub fn emission(mut self, emission: EmissionKind) -> Self {
         self.0.emission = emission;
         self
@@ -423,15 +423,6 @@ impl Method {
                 ),
             });
         }
-        if !o.emission.is_default() && matches!(preset, Preset::Gmm | Preset::GmmTsc) {
-            return Err(TscError::InvalidSetting {
-                name: "emission",
-                reason: format!(
-                    "emission={} is offered for the HMM presets (hmm, the tsc-hmm presets, hmm-cv, tsc-hmm-cv), not `{preset}`, whose mixtures are full Gaussians",
-                    o.emission
-                ),
-            });
-        }
         let hmm_builder = HmmSettings::builder()
             .states(o.states)
             .reg(o.reg)
@@ -466,6 +457,7 @@ impl Method {
                 .tol(1e-3)
                 .restarts(o.restarts.max(3))
                 .seed(o.seed)
+                .emission(o.emission)
                 .build()
         };
         Ok(match preset {
@@ -518,6 +510,7 @@ impl Method {
                     })
                     .reg(o.reg)
                     .seed(o.seed)
+                    .emission(o.emission)
                     .build()?,
             },
         })

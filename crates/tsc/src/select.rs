@@ -9,8 +9,9 @@
 //! so the automatic choices refuse it ([`TscError::GMeansAboveRange`]) rather
 //! than return the cap as if it had been chosen.
 
+use crate::emission_choice::EmissionKind;
 use crate::error::{Result, TscError};
-use phasekit_emission::{CovarianceType, Emission, Frames, Gaussian, SequenceSet, Shape};
+use phasekit_emission::{Emission, Frames, SequenceSet};
 use phasekit_gmm::{gmeans, select_mixture_bic, Em, GMeans, GMeansResult};
 use phasekit_hmm::{BaumWelch, HmmFit};
 use serde::{Deserialize, Serialize};
@@ -136,11 +137,25 @@ pub fn gmeans_count(
 }
 
 /// The number of full-covariance Gaussian components for `frames`, chosen by
+/// `selector` within `range` ([`mixture_components_of`] with full Gaussians).
+pub fn mixture_components(
+    selector: Selector,
+    em: &Em,
+    frames: Frames<'_>,
+    range: RangeInclusive<usize>,
+) -> Result<AutoCount> {
+    mixture_components_of(EmissionKind::default(), selector, em, frames, range)
+}
+
+/// The number of components of emission `kind` for `frames`, chosen by
 /// `selector` within `range`, whose upper end is first lowered to what the
-/// frames support ([`max_supported_components`]). A G-means count below the
+/// frames support ([`max_supported_components`]: the count a full covariance
+/// needs, the most demanding kind). BIC fits mixtures of `kind`; G-means
+/// counts Gaussian clusters whatever the kind. A G-means count below the
 /// range is raised to its lower end; one above it is refused
 /// ([`gmeans_count`]).
-pub fn mixture_components(
+pub fn mixture_components_of(
+    kind: EmissionKind,
     selector: Selector,
     em: &Em,
     frames: Frames<'_>,
@@ -161,23 +176,7 @@ pub fn mixture_components(
         )
     });
     let count = match selector {
-        Selector::Bic => {
-            select_mixture_bic(
-                em,
-                |k| {
-                    Gaussian::standard(
-                        CovarianceType::Full,
-                        Shape {
-                            n_states: k,
-                            dim: d,
-                        },
-                    )
-                },
-                frames,
-                lo..=hi,
-            )?
-            .best
-        }
+        Selector::Bic => select_mixture_bic(em, |k| kind.template(k, d), frames, lo..=hi)?.best,
         Selector::GMeans => gmeans_count(frames, hi, "mixture components", lowered.clone())?
             .k
             .max(lo),

@@ -156,6 +156,8 @@ fn every_preset_fits_every_emission_predicts_online_like_batch_and_round_trips()
             Preset::TscHmm,
             Preset::TscHmmGated,
             Preset::TscHmmFrozen,
+            Preset::Gmm,
+            Preset::GmmTsc,
         ] {
             let options = PresetOptions::builder()
                 .max_iter(8)
@@ -300,4 +302,94 @@ fn an_emission_without_a_conditional_is_segmented_by_the_tsc_hmm() {
         .unwrap();
     let err = TscHmm::fit_with(&data, &roles, &worst, Poisson::unit).unwrap_err();
     assert!(err.to_string().contains("conditional"), "{err}");
+}
+
+#[test]
+fn the_mixture_presets_fit_every_emission_in_every_mixture() {
+    let (train, _) = data(7, 4);
+    for kind in kinds() {
+        let options = PresetOptions::builder()
+            .max_iter(8)
+            .emission(kind)
+            .build()
+            .unwrap();
+        let (model, _) = Method::preset(Preset::GmmTsc, &options)
+            .unwrap()
+            .fit(&train, &roles())
+            .unwrap_or_else(|e| panic!("gmm-tsc {kind}: {e}"));
+        let Model::GmmTsc { tsc, mixture } = &model else {
+            panic!("gmm-tsc fitted {model:?}")
+        };
+        // The frame mixture, the transition clusters and the joined mixture
+        // that predicts are all of the chosen emission.
+        assert_eq!(mixture.components().kind(), kind);
+        assert_eq!(tsc.mixture().components().kind(), kind);
+        assert_eq!(tsc.transition_mixture().components().kind(), kind);
+        assert_eq!(
+            mixture.n_components(),
+            tsc.mixture().n_components() + tsc.kept().len(),
+            "{kind}: the joined mixture holds the frame components and the kept transitions"
+        );
+        let (model, _) = Method::preset(Preset::Gmm, &options)
+            .unwrap()
+            .fit(&train, &roles())
+            .unwrap();
+        let Model::Gmm(g) = &model else {
+            panic!("gmm fitted {model:?}")
+        };
+        assert_eq!(g.components().kind(), kind);
+    }
+}
+
+/// Static GMR on data whose demonstrations hold gross marker glitches: a
+/// Student-t mixture down-weights them, a Gaussian one widens its components
+/// around them, so the Student-t's prediction of clean test data is better.
+#[test]
+fn a_student_t_mixture_predicts_through_glitches_better_than_a_gaussian_one() {
+    let (train, test) = data(9, 11);
+    let mut rng = ChaCha8Rng::seed_from_u64(5);
+    let glitched: Vec<Vec<f64>> = train
+        .iter()
+        .map(|s| {
+            let mut f = s.as_slice().to_vec();
+            for v in f.chunks_exact_mut(6) {
+                if rand::Rng::random::<f64>(&mut rng) < 0.05 {
+                    // A marker swap: the robot's hand jumps by a metre.
+                    v[3 + rand::Rng::random_range(&mut rng, 0..3)] += 1.0;
+                }
+            }
+            f
+        })
+        .collect();
+    let train = SequenceSet::new(&glitched, 6).unwrap();
+    let mse = |kind: &str| {
+        let options = PresetOptions::builder()
+            .states(6)
+            .emission(kind.parse().unwrap())
+            .build()
+            .unwrap();
+        let (model, _) = Method::preset(Preset::Gmm, &options)
+            .unwrap()
+            .fit(&train, &roles())
+            .unwrap();
+        let predictor = model.predictor(&roles()).unwrap();
+        let (mut sum, mut n) = (0.0, 0);
+        for seq in &test {
+            let human: Vec<f64> = seq.chunks_exact(6).flat_map(|f| f[..3].to_vec()).collect();
+            let p = predictor
+                .predict(Frames::new(&human, 3).unwrap(), false)
+                .unwrap();
+            for (f, m) in seq.chunks_exact(6).zip(p.mean.chunks_exact(3)) {
+                sum += (0..3).map(|j| (f[3 + j] - m[j]).powi(2)).sum::<f64>();
+                n += 1;
+            }
+        }
+        sum / n as f64
+    };
+    let (gaussian, student) = (mse("full"), mse("student-t"));
+    eprintln!("static GMR through glitches, MSE (m²): full {gaussian:.6}, student-t {student:.6}");
+    assert!(
+        student < 0.8 * gaussian,
+        "Student-t MSE {student} is not clearly below the Gaussian's {gaussian}"
+    );
 }

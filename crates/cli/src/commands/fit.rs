@@ -9,7 +9,7 @@ use crate::experiment::parse_method;
 use crate::model_file::{MethodInfo, ModelFile, Standardisation};
 use crate::output;
 use phasekit_emission::SequenceSet;
-use phasekit_tsc::{EmissionKind, FitStop, FitSummary, Model, PresetOptions, Roles};
+use phasekit_tsc::{FitStop, FitSummary, Model, PresetOptions, Roles};
 use serde::Serialize;
 use std::path::PathBuf;
 
@@ -72,8 +72,7 @@ pub fn emission_name(model: &Model) -> String {
     match model {
         Model::Hmm(h) => h.emission().kind().to_string(),
         Model::TscHmm { model, .. } => model.base().emission().kind().to_string(),
-        // The mixture presets fit full-covariance Gaussian components.
-        Model::Gmm(_) | Model::GmmTsc { .. } => EmissionKind::default().to_string(),
+        Model::Gmm(g) | Model::GmmTsc { mixture: g, .. } => g.components().kind().to_string(),
     }
 }
 
