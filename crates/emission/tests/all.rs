@@ -2,9 +2,9 @@
 //! instead of one per file keeps the test command inside its time budget.
 //! Each file stays a module of its own; add a `mod` line for a new one.
 
-mod common;
 mod capabilities;
 mod checked_api;
+mod common;
 mod discrete;
 mod properties;
 mod regularisation_serde;
