@@ -489,6 +489,7 @@ impl HsmmEmBuilder {
 
 /// What a fit did.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[non_exhaustive]
 pub struct HsmmFitReport {
     /// Number of M-steps of the returned run.
     pub iterations: usize,
@@ -512,6 +513,7 @@ pub struct HsmmFitReport {
 
 /// A fitted model and its report.
 #[derive(Debug, Clone)]
+#[non_exhaustive]
 pub struct HsmmFit<E: Emission, D: Duration> {
     /// The model whose log-likelihood was evaluated last.
     pub model: Hsmm<E, D>,
