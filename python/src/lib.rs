@@ -9,9 +9,9 @@
 //! that it can be read next to the library it mirrors.
 //!
 //! Every call into phasekit's API is in one place per estimator:
-//! [`hmm`] (the HMMs and their E-step statistics), [`gmm`] (the mixture),
-//! [`gmr`] (regression), [`interaction`] (the command's pipeline and model
-//! files, through `phasekit_cli`) and [`stats`] (mergeable statistics and
+//! `hmm` (the HMMs and their E-step statistics), `gmm` (the mixture),
+//! `gmr` (regression), `interaction` (the command's pipeline and model
+//! files, through `phasekit_cli`) and `stats` (mergeable statistics and
 //! their compact serialisation). A rename in phasekit's API is followed there.
 
 use pyo3::prelude::*;

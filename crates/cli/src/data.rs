@@ -362,7 +362,7 @@ pub fn read_csv_from<R: std::io::Read>(source: R, path: &Path) -> Result<Table> 
 /// [`read_csv_select`] from any reader; `path` names the source in errors.
 ///
 /// The delimiter is a comma, or a semicolon or a tab when the header line has
-/// those and no comma (see [`delimiter`]). A UTF-8 byte order mark is ignored.
+/// those and no comma (see `delimiter`). A UTF-8 byte order mark is ignored.
 pub fn read_csv_from_select<R: std::io::Read>(
     source: R,
     path: &Path,

@@ -2,6 +2,39 @@
 //! features, the paper-compatible evaluation protocol, model files, and the
 //! commands themselves (`fit`, `segment`, `predict`, `stream`, `evaluate`,
 //! `plot`, `demo`).
+//!
+//! Every reader checks what it reads and says where it is wrong (file, row,
+//! column); an empty cell, `NaN` or `NA` is a value not observed.
+//!
+//! # Example
+//!
+//! Read a demonstration from any reader, then parse a command line as the
+//! `phasekit` binary does (a program can build the same [`cli::Cli`] and hand
+//! it to [`run`]):
+//!
+//! ```
+//! use clap::Parser;
+//! use phasekit_cli::cli::{Cli, Command};
+//! use phasekit_cli::data::read_csv_from;
+//! use std::path::Path;
+//!
+//! # fn main() -> Result<(), Box<dyn std::error::Error>> {
+//! let csv = "p1_wrist_x,p1_wrist_y\n0.10,0.20\n0.30,\n";
+//! let table = read_csv_from(csv.as_bytes(), Path::new("train_01.csv"))?;
+//! assert_eq!(table.columns, ["p1_wrist_x", "p1_wrist_y"]);
+//! assert_eq!(table.n_rows(), 2);
+//! assert!(table.data[3].is_nan()); // the empty cell: not observed
+//!
+//! // A cell that is not a number is an error naming the file, the row and the column.
+//! let bad = read_csv_from("x,y\n0.1,oops\n".as_bytes(), Path::new("bad.csv")).unwrap_err();
+//! let message = bad.to_string();
+//! assert!(message.contains("bad.csv") && message.contains("oops"), "{message}");
+//!
+//! let cli = Cli::try_parse_from(["phasekit", "demo"])?;
+//! assert!(matches!(cli.command, Command::Demo(_)));
+//! # Ok(())
+//! # }
+//! ```
 
 #![warn(missing_docs)]
 

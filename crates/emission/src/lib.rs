@@ -77,6 +77,7 @@ pub mod mixture;
 pub mod per_state;
 pub mod poisson;
 pub mod regularisation;
+pub mod restarts;
 pub mod student_t;
 
 /// The `nalgebra` this crate's public API uses ([`Gaussian::covariance`]

@@ -9,6 +9,7 @@
 use crate::error::{GmmError, Result};
 use crate::model::{normalise_log_row, Gmm};
 use phasekit_emission::kmeans::{kmeans, Seeding};
+use phasekit_emission::restarts::best_of_restarts;
 use phasekit_emission::{Emission, Frames, MStepReport, Regularisation, SufficientStatistics};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -436,38 +437,24 @@ impl Em {
             return Err(GmmError::TooFewFrames("no frames given".into()));
         }
         template.check_frames(frames)?;
-        let mut best: Option<GmmFit<E>> = None;
-        let mut finals = Vec::with_capacity(self.restarts);
-        let mut first_error = None;
-        for r in 0..self.restarts {
-            let mut rng = ChaCha8Rng::seed_from_u64(self.seed.wrapping_add(r as u64));
-            let run = self
-                .initialise(template, frames, self.init, &mut rng)
-                .and_then(|m| self.run(m, frames));
-            match run {
-                Ok(fitted) => {
-                    let obj = *fitted.report.objective.last().unwrap_or(&f64::NEG_INFINITY);
-                    finals.push(Some(obj));
-                    if best.as_ref().is_none_or(|b| {
-                        obj > *b.report.objective.last().unwrap_or(&f64::NEG_INFINITY)
-                    }) {
-                        let mut fitted = fitted;
-                        fitted.report.best_restart = r;
-                        best = Some(fitted);
-                    }
-                }
-                Err(e) => {
-                    finals.push(None);
-                    first_error.get_or_insert(e);
-                }
+        let runs = best_of_restarts(
+            self.restarts,
+            |r| {
+                let mut rng = ChaCha8Rng::seed_from_u64(self.seed.wrapping_add(r as u64));
+                self.initialise(template, frames, self.init, &mut rng)
+                    .and_then(|m| self.run(m, frames))
+            },
+            |fitted| *fitted.report.objective.last().unwrap_or(&f64::NEG_INFINITY),
+        );
+        let mut fitted = match (runs.best, runs.first_error) {
+            (Some((mut b, r)), _) => {
+                b.report.best_restart = r;
+                b
             }
-        }
-        let mut fitted = match (best, first_error) {
-            (Some(b), _) => b,
             (None, Some(e)) => return Err(e),
             (None, None) => return Err(GmmError::TooFewFrames("no run was made".into())),
         };
-        fitted.report.restarts = finals;
+        fitted.report.restarts = runs.finals;
         fitted.report.fit_seconds = clock.elapsed().as_secs_f64();
         Ok(fitted)
     }

@@ -14,6 +14,7 @@ use crate::inference::formulas::{start_update, transition_update};
 use crate::inference::PosteriorWorkspace;
 use crate::init::{initialise, HmmInit};
 use crate::model::Hmm;
+use phasekit_emission::restarts::best_of_restarts;
 use phasekit_emission::{Emission, MStepReport, Regularisation, SequenceSet, SufficientStatistics};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -613,44 +614,27 @@ impl BaumWelch {
                 .check_frames(seq)
                 .map_err(|e| HmmError::from(e).in_sequence(k))?;
         }
-        let mut best: Option<HmmFit<E>> = None;
-        let mut finals = Vec::with_capacity(self.restarts);
-        let mut first_error = None;
-        for r in 0..self.restarts {
-            let mut rng = ChaCha8Rng::seed_from_u64(self.seed.wrapping_add(r as u64));
-            let init = match (r, self.init) {
-                (r, HmmInit::KBins { .. }) if r > 0 => HmmInit::KMeans,
-                (_, init) => init,
-            };
-            let run = initialise(template, data, init, &self.regularisation, &mut rng)
-                .and_then(|hmm| self.run(hmm, data));
-            match run {
-                Ok(fitted) => {
-                    let obj = *fitted.report.objective.last().unwrap_or(&f64::NEG_INFINITY);
-                    finals.push(Some(obj));
-                    let better = match &best {
-                        None => true,
-                        Some(b) => obj > *b.report.objective.last().unwrap_or(&f64::NEG_INFINITY),
-                    };
-                    if better {
-                        let mut fitted = fitted;
-                        fitted.report.best_restart = r;
-                        best = Some(fitted);
-                    }
-                }
-                Err(e) => {
-                    finals.push(None);
-                    first_error.get_or_insert(e);
-                }
-            }
-        }
-        match best {
-            Some(mut fitted) => {
-                fitted.report.restarts = finals;
+        let runs = best_of_restarts(
+            self.restarts,
+            |r| {
+                let mut rng = ChaCha8Rng::seed_from_u64(self.seed.wrapping_add(r as u64));
+                let init = match (r, self.init) {
+                    (r, HmmInit::KBins { .. }) if r > 0 => HmmInit::KMeans,
+                    (_, init) => init,
+                };
+                initialise(template, data, init, &self.regularisation, &mut rng)
+                    .and_then(|hmm| self.run(hmm, data))
+            },
+            |fitted| *fitted.report.objective.last().unwrap_or(&f64::NEG_INFINITY),
+        );
+        match runs.best {
+            Some((mut fitted, r)) => {
+                fitted.report.best_restart = r;
+                fitted.report.restarts = runs.finals;
                 fitted.report.fit_seconds = clock.elapsed().as_secs_f64();
                 Ok(fitted)
             }
-            None => Err(first_error.unwrap_or(HmmError::NoData)),
+            None => Err(runs.first_error.unwrap_or(HmmError::NoData)),
         }
     }
 

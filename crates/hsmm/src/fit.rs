@@ -22,6 +22,7 @@ use crate::error::{invalid, HsmmError, Result};
 use crate::inference::{SegmentCounts, Workspace};
 use crate::init::{initialise, HsmmInit, InitSettings, Structure};
 use crate::model::{Censoring, Hsmm, Tables};
+use phasekit_emission::restarts::best_of_restarts;
 use phasekit_emission::{Emission, MStepReport, Regularisation, SequenceSet, SufficientStatistics};
 pub use phasekit_hmm::Convergence;
 use rand::SeedableRng;
@@ -488,6 +489,7 @@ impl HsmmEmBuilder {
 
 /// What a fit did.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[non_exhaustive]
 pub struct HsmmFitReport {
     /// Number of M-steps of the returned run.
     pub iterations: usize,
@@ -511,6 +513,7 @@ pub struct HsmmFitReport {
 
 /// A fitted model and its report.
 #[derive(Debug, Clone)]
+#[non_exhaustive]
 pub struct HsmmFit<E: Emission, D: Duration> {
     /// The model whose log-likelihood was evaluated last.
     pub model: Hsmm<E, D>,
@@ -579,50 +582,33 @@ impl HsmmEm {
             regularisation: &self.regularisation,
             duration_regularisation: &self.duration_regularisation,
         };
-        let mut best: Option<HsmmFit<E, D>> = None;
-        let mut finals = Vec::with_capacity(self.restarts);
-        let mut first_error = None;
-        for r in 0..self.restarts {
-            let mut rng = ChaCha8Rng::seed_from_u64(self.seed.wrapping_add(r as u64));
-            let init = match (r, self.init) {
-                (r, HsmmInit::KBins { .. }) if r > 0 => HsmmInit::KMeans,
-                (_, init) => init,
-            };
-            let run = initialise(
-                emission,
-                durations,
-                data,
-                InitSettings { init, ..settings },
-                &mut rng,
-            )
-            .and_then(|m| self.run(m, data));
-            match run {
-                Ok(fitted) => {
-                    let obj = *fitted.report.objective.last().unwrap_or(&f64::NEG_INFINITY);
-                    finals.push(Some(obj));
-                    let better = match &best {
-                        None => true,
-                        Some(b) => obj > *b.report.objective.last().unwrap_or(&f64::NEG_INFINITY),
-                    };
-                    if better {
-                        let mut fitted = fitted;
-                        fitted.report.best_restart = r;
-                        best = Some(fitted);
-                    }
-                }
-                Err(e) => {
-                    finals.push(None);
-                    first_error.get_or_insert(e);
-                }
-            }
-        }
-        match best {
-            Some(mut fitted) => {
-                fitted.report.restarts = finals;
+        let runs = best_of_restarts(
+            self.restarts,
+            |r| {
+                let mut rng = ChaCha8Rng::seed_from_u64(self.seed.wrapping_add(r as u64));
+                let init = match (r, self.init) {
+                    (r, HsmmInit::KBins { .. }) if r > 0 => HsmmInit::KMeans,
+                    (_, init) => init,
+                };
+                initialise(
+                    emission,
+                    durations,
+                    data,
+                    InitSettings { init, ..settings },
+                    &mut rng,
+                )
+                .and_then(|m| self.run(m, data))
+            },
+            |fitted| *fitted.report.objective.last().unwrap_or(&f64::NEG_INFINITY),
+        );
+        match runs.best {
+            Some((mut fitted, r)) => {
+                fitted.report.best_restart = r;
+                fitted.report.restarts = runs.finals;
                 fitted.report.fit_seconds = clock.elapsed().as_secs_f64();
                 Ok(fitted)
             }
-            None => Err(first_error.unwrap_or(HsmmError::NoData)),
+            None => Err(runs.first_error.unwrap_or(HsmmError::NoData)),
         }
     }
 

@@ -60,6 +60,7 @@ const NEG_INF: f64 = f64::NEG_INFINITY;
 
 /// One segment of a segmentation: state `state` on frames `start..start + len`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[non_exhaustive]
 pub struct Segment {
     /// The state.
     pub state: usize,
@@ -103,6 +104,7 @@ impl HsmmForward {
 
 /// Posteriors of one sequence.
 #[derive(Debug, Clone, PartialEq)]
+#[non_exhaustive]
 pub struct HsmmPosteriors {
     /// `γ_t(i) = p(z_t = i | x)`, `T × S` row-major.
     pub gamma: Vec<f64>,
@@ -126,6 +128,7 @@ pub struct HsmmPosteriors {
 
 /// The most probable segmentation.
 #[derive(Debug, Clone, PartialEq)]
+#[non_exhaustive]
 pub struct ViterbiSegmentation {
     /// The state of every frame.
     pub states: Vec<usize>,

@@ -30,6 +30,7 @@ use std::ops::Range;
 
 /// The composed HMM and where each action's states are in it.
 #[derive(Debug, Clone)]
+#[non_exhaustive]
 pub struct ComposedHmm {
     /// The joint HMM (every action's states, then the rest state).
     pub hmm: Hmm<Gaussian>,

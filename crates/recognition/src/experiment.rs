@@ -149,6 +149,7 @@ pub fn mean_std(v: &[f64]) -> (f64, f64) {
 
 /// A mean and a standard deviation over seeds.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[non_exhaustive]
 pub struct Stat {
     /// Mean over seeds.
     pub mean: f64,
@@ -165,6 +166,7 @@ impl Stat {
 
 /// Accuracy after observing a fraction of the test demonstrations.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[non_exhaustive]
 pub struct AccuracyRow {
     /// Method label.
     pub method: String,
@@ -182,6 +184,7 @@ pub struct AccuracyRow {
 
 /// When the decision becomes and stays right.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[non_exhaustive]
 pub struct SettledRow {
     /// Method label.
     pub method: String,
@@ -205,6 +208,7 @@ pub struct SettledRow {
 
 /// Decisions summed over seeds at one observed fraction.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[non_exhaustive]
 pub struct ConfusionRow {
     /// Method label.
     pub method: String,
@@ -216,6 +220,7 @@ pub struct ConfusionRow {
 
 /// End-to-end robot prediction error of one action.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[non_exhaustive]
 pub struct EndToEndRow {
     /// Method label.
     pub method: String,
@@ -241,6 +246,7 @@ pub struct EndToEndRow {
 
 /// Rejection of unknown motions.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[non_exhaustive]
 pub struct UnknownRow {
     /// Method label.
     pub method: String,
@@ -296,6 +302,7 @@ impl StreamRecogniser {
 
 /// Continuous streams, scored per frame.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[non_exhaustive]
 pub struct StreamRow {
     /// Method label.
     pub method: String,
@@ -320,6 +327,7 @@ pub struct StreamRow {
 
 /// What the libraries' calibration set, over seeds.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[non_exhaustive]
 pub struct CalibrationRow {
     /// Method label.
     pub method: String,
@@ -337,6 +345,7 @@ pub struct CalibrationRow {
 
 /// Everything the experiment measured.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[non_exhaustive]
 pub struct Report {
     /// The actions.
     pub actions: Vec<String>,

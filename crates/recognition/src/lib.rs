@@ -23,22 +23,44 @@
 //!
 //! Everything the crate needs from the methods' models goes through [`parts`].
 //!
-//! ```no_run
-//! use phasekit_recognition::{Library, LibrarySettings, Recogniser, RecogniserSettings};
-//! # fn demo(handshakes: &phasekit_emission::SequenceSet, waves: &phasekit_emission::SequenceSet,
-//! #         method: &phasekit_tsc::Method, roles: &phasekit_tsc::Roles, frame: &[f64])
-//! #         -> phasekit_recognition::Result<()> {
+//! # Example
+//!
+//! A library of two generated interactions (handshake, wave), each fitted
+//! with the paper's HMM, recognises a new wave frame by frame:
+//!
+//! ```
+//! use phasekit_emission::SequenceSet;
+//! use phasekit_recognition::{Decision, Library, LibrarySettings, Recogniser, RecogniserSettings};
+//! use phasekit_tsc::synthetic::{generate_kind, with_velocities, Kind};
+//! use phasekit_tsc::{Method, Preset, PresetOptions, Roles};
+//!
+//! # fn main() -> Result<(), Box<dyn std::error::Error>> {
+//! // Joint features: the human's hand position and velocity (0..6), the robot's (6..12).
+//! let joint = |kind, n, seed| -> Vec<Vec<f64>> {
+//!     generate_kind(kind, n, seed).iter().map(with_velocities).collect()
+//! };
+//! let handshakes = SequenceSet::new(&joint(Kind::Handshake, 6, 1), 12)?;
+//! let waves = SequenceSet::new(&joint(Kind::Wave, 6, 1), 12)?;
+//! let roles = Roles::new((0..6).collect(), (6..12).collect())?;
+//! let method = Method::preset(Preset::Hmm, &PresetOptions::default())?;
 //! let (library, _reports) = Library::fit(
-//!     &[("handshake", handshakes, method), ("wave", waves, method)],
-//!     None,                                          // each model recognises its action
-//!     roles,
+//!     &[("handshake", &handshakes, &method), ("wave", &waves, &method)],
+//!     None, // each model recognises its own action
+//!     &roles,
 //!     &LibrarySettings::default(),
 //! )?;
+//!
+//! // A wave the library has not seen, one frame of the human's features at a time.
 //! let mut recogniser = Recogniser::new(&library, RecogniserSettings::default())?;
-//! let decision = recogniser.step(frame)?;            // the human's features of one frame
-//! let p = recogniser.posterior();                    // p(a | frames so far), per action
-//! let robot = recogniser.robot();                    // the robot's predicted features
-//! # let _ = (decision, p, robot); Ok(()) }
+//! let mut decision = Decision::Unknown;
+//! for frame in joint(Kind::Wave, 1, 77)[0].chunks_exact(12) {
+//!     decision = recogniser.step(&frame[..6])?;
+//!     assert_eq!(recogniser.robot().len(), 6); // the robot's predicted features
+//! }
+//! assert_eq!(decision, Decision::Action(1));
+//! assert!(recogniser.posterior()[1] > 0.99); // p(wave | frames so far)
+//! # Ok(())
+//! # }
 //! ```
 
 #![warn(missing_docs)]

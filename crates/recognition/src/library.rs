@@ -163,6 +163,7 @@ struct HeldOut {
 
 /// One action, fitted and ready to join a library ([`Library::assemble`]).
 #[derive(Debug, Clone)]
+#[non_exhaustive]
 pub struct FittedAction {
     /// The action's name.
     pub name: String,
@@ -346,6 +347,7 @@ fn rest_frames(data: &SequenceSet, k: usize) -> Vec<f64> {
 
 /// One action of a library.
 #[derive(Debug, Clone, Serialize, Deserialize)]
+#[non_exhaustive]
 pub struct LibraryAction {
     /// The action's name.
     pub name: String,
@@ -365,6 +367,7 @@ pub struct LibraryAction {
 
 /// The rest state: a joint Gaussian over the human's and the robot's features.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[non_exhaustive]
 pub struct RestState {
     /// Mean (`D`): its robot part is the rest pose.
     pub mean: Vec<f64>,
@@ -392,6 +395,7 @@ pub struct RestState {
 /// `None` when it cannot be set (a held-out demonstration impossible under its
 /// own action's model).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[non_exhaustive]
 pub struct Calibration {
     /// Threshold of the likelihood-per-frame test (nats per frame).
     pub likelihood_per_frame: Option<f64>,
@@ -437,6 +441,7 @@ pub struct Library {
 
 /// The serialised form of a [`Library`], checked on the way in.
 #[derive(Debug, Clone, Serialize, Deserialize)]
+#[non_exhaustive]
 pub struct LibraryParams {
     /// The actions.
     pub actions: Vec<LibraryAction>,

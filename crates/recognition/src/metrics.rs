@@ -70,6 +70,7 @@ pub fn median_or_never(v: &[Option<f64>]) -> Option<f64> {
 /// A confusion matrix: rows are the true actions, columns the decided ones,
 /// then a column for *unknown* and one for *rest*.
 #[derive(Debug, Clone, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[non_exhaustive]
 pub struct Confusion {
     /// `A × (A + 2)` counts.
     pub counts: Vec<Vec<usize>>,

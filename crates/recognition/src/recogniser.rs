@@ -541,6 +541,10 @@ impl Recogniser {
     }
 
     /// Action `a`'s own prediction of the robot's features for the last frame.
+    ///
+    /// # Panics
+    ///
+    /// If `a` is not an action of the library (`a >= library.actions().len()`).
     pub fn action_robot(&self, a: usize) -> &[f64] {
         &self.means[a * self.n_out..(a + 1) * self.n_out]
     }

@@ -7,7 +7,7 @@
 //! * `dispatch`: which instruction set the kernels run with, chosen once at run time.
 //!
 //! Every kernel is plain Rust whose SIMD lanes do exactly the arithmetic of
-//! the scalar form, compiled once per instruction set by [`dispatch`]: the
+//! the scalar form, compiled once per instruction set by [`dispatch`](fn@crate::linalg::dispatch): the
 //! results are the same bits on every CPU (see the `dispatch` module for what
 //! that does not cover).
 

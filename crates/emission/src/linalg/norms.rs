@@ -85,7 +85,7 @@ pub const STATE_LANES: usize = 8;
 /// `out[l] = ‖W_l v_l‖²` for [`STATE_LANES`] different packed lower
 /// triangles at once (one frame under several states): `wl[e·8 + l]` is entry
 /// `e` of `W_l`, `xt[k·8 + l]` entry `k` of `v_l`. Every lane does exactly the
-/// arithmetic of [`packed_lower_sq_norm`] (and of one lane of [`sq_norms`]).
+/// arithmetic of [`packed_lower_sq_norm`] (and of one lane of the private `sq_norms`).
 #[inline(always)]
 pub fn sq_norms_lanes(wl: &[f64], d: usize, xt: &[f64], out: &mut [f64; STATE_LANES]) {
     const L: usize = STATE_LANES;

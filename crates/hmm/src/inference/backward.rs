@@ -22,8 +22,8 @@
 //! same loop: two independent dependency chains that the CPU overlaps.
 
 use super::kernels::{
-    all_at_least, all_positive_densities, chunks, max_lanes, padded, padded_rows, sum_lanes,
-    vec_mat, vec_mat_dyn, Lanes, RESCALE, SAFE, W,
+    all_at_least, all_positive_densities, chunks, exp_shifted, max_lanes, padded, padded_rows,
+    scale_lanes, sum_lanes, vec_mat, vec_mat_dyn, Lanes, RESCALE, SAFE, W,
 };
 use crate::model::Hmm;
 use phasekit_emission::linalg::{exp_slice, log_sum_exp};
@@ -150,12 +150,7 @@ impl BackwardCore {
         if !all_positive_densities(log_b) || m == f64::INFINITY {
             return false;
         }
-        for (uk, lk) in u.iter_mut().zip(log_b) {
-            for l in 0..W {
-                uk[l] = lk[l] - m;
-            }
-        }
-        exp_slice(u.as_flattened_mut());
+        exp_shifted(log_b, m, u);
         for (uk, bk) in u.iter_mut().zip(beta) {
             for l in 0..W {
                 uk[l] *= bk[l];
@@ -166,11 +161,7 @@ impl BackwardCore {
             return false;
         }
         let inv = 1.0 / total;
-        for uk in u.iter_mut() {
-            for v in uk.iter_mut() {
-                *v *= inv;
-            }
-        }
+        scale_lanes(u, inv);
         *next = vec_mat::<C>(&u.as_flattened()[..self.s], &self.transition_t);
         if !all_at_least(next, &self.floor) {
             return false;
@@ -191,12 +182,7 @@ impl BackwardCore {
         if !all_positive_densities(log_b) || m == f64::INFINITY {
             return false;
         }
-        for (uk, lk) in u.iter_mut().zip(log_b) {
-            for l in 0..W {
-                uk[l] = lk[l] - m;
-            }
-        }
-        exp_slice(u.as_flattened_mut());
+        exp_shifted(log_b, m, u);
         for (uk, bk) in u.iter_mut().zip(&self.beta) {
             for l in 0..W {
                 uk[l] *= bk[l];
@@ -207,11 +193,7 @@ impl BackwardCore {
             return false;
         }
         let inv = 1.0 / total;
-        for uk in u.iter_mut() {
-            for v in uk.iter_mut() {
-                *v *= inv;
-            }
-        }
+        scale_lanes(u, inv);
         vec_mat_dyn(
             &u.as_flattened()[..self.s],
             &self.transition_t,
@@ -234,12 +216,7 @@ impl BackwardCore {
     /// on the padding), one vectorised pass of exponentials; returns `Σ_j u_j`.
     #[inline(always)]
     fn fill(&self, log_b: &[Lanes], m: f64, u: &mut [Lanes]) -> f64 {
-        for (uk, lk) in u.iter_mut().zip(log_b) {
-            for l in 0..W {
-                uk[l] = lk[l] - m;
-            }
-        }
-        exp_slice(u.as_flattened_mut());
+        exp_shifted(log_b, m, u);
         let beta = self.beta.as_flattened();
         for (j, uj) in u.as_flattened_mut().iter_mut().enumerate() {
             *uj = if j < self.s && self.carry[j] {

@@ -30,8 +30,8 @@
 //! each other and against [`super::formulas::forward_variable`]).
 
 use super::kernels::{
-    all_at_least, all_positive_densities, chunks, max_lanes, padded, padded_rows, sum_lanes,
-    vec_mat, vec_mat_dyn, Lanes, PAD_LOG_B, RESCALE, SAFE, W,
+    all_at_least, all_positive_densities, chunks, exp_shifted, max_lanes, padded, padded_rows,
+    scale_lanes, sum_lanes, vec_mat, vec_mat_dyn, Lanes, PAD_LOG_B, RESCALE, SAFE, W,
 };
 use crate::model::Hmm;
 use phasekit_emission::linalg::{dispatch, exp_slice, log_sum_exp};
@@ -199,12 +199,7 @@ impl ForwardCore {
             return None;
         }
         let mut o = [[0.0; W]; C];
-        for (ok, lk) in o.iter_mut().zip(&log_b) {
-            for l in 0..W {
-                ok[l] = lk[l] - m;
-            }
-        }
-        exp_slice(o.as_flattened_mut());
+        exp_shifted(&log_b, m, &mut o);
         for (ok, pk) in o.iter_mut().zip(&pred) {
             for l in 0..W {
                 ok[l] *= pk[l];
@@ -215,11 +210,7 @@ impl ForwardCore {
             return None;
         }
         let inv = 1.0 / c;
-        for ok in o.iter_mut() {
-            for v in ok.iter_mut() {
-                *v *= inv;
-            }
-        }
+        scale_lanes(&mut o, inv);
         let next = vec_mat::<C>(&o.as_flattened()[..self.s], &self.transition);
         if !all_at_least(&next, &self.floor) {
             return None;
@@ -236,12 +227,7 @@ impl ForwardCore {
         if !all_positive_densities(log_b) || m == f64::INFINITY {
             return None;
         }
-        for (ek, lk) in self.e.iter_mut().zip(log_b) {
-            for l in 0..W {
-                ek[l] = lk[l] - m;
-            }
-        }
-        exp_slice(self.e.as_flattened_mut());
+        exp_shifted(log_b, m, &mut self.e);
         for ((hk, pk), ek) in h.iter_mut().zip(&self.pred).zip(&self.e) {
             for l in 0..W {
                 hk[l] = pk[l] * ek[l];
@@ -252,11 +238,7 @@ impl ForwardCore {
             return None;
         }
         let inv = 1.0 / c;
-        for hk in h.iter_mut() {
-            for v in hk.iter_mut() {
-                *v *= inv;
-            }
-        }
+        scale_lanes(h, inv);
         vec_mat_dyn(
             &h.as_flattened()[..self.s],
             &self.transition,
@@ -275,12 +257,7 @@ impl ForwardCore {
     /// taken in one vectorised pass over every lane (branch-free), then masked.
     #[inline(always)]
     fn scaled(&mut self, log_b: &[Lanes], m: f64, out: &mut [Lanes]) -> f64 {
-        for (ek, lk) in self.e.iter_mut().zip(log_b) {
-            for l in 0..W {
-                ek[l] = lk[l] - m;
-            }
-        }
-        exp_slice(self.e.as_flattened_mut());
+        exp_shifted(log_b, m, &mut self.e);
         let (e, pred) = (self.e.as_flattened(), self.pred.as_flattened());
         for (j, o) in out.as_flattened_mut().iter_mut().enumerate() {
             *o = if j < self.s && self.alive[j] {

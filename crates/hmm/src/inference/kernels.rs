@@ -8,7 +8,7 @@
 //! whole chunks; with `C` chunks known at compile time (`S ≤ 32`) the
 //! vectors live in registers.
 
-use phasekit_emission::linalg::reduce_lanes;
+use phasekit_emission::linalg::{exp_slice, reduce_lanes};
 
 /// Probabilities at or above this keep full relative precision in the scaled
 /// recursions: a term that underflowed carries an absolute error of at most
@@ -48,6 +48,31 @@ pub(crate) fn sum_lanes(v: &[Lanes]) -> f64 {
         }
     }
     reduce_lanes(q)
+}
+
+/// `out_k = e^{v_k − m}` on every lane, in one vectorised pass of
+/// exponentials: the shift-and-exponentiate that opens every scaled step of
+/// the forward and backward recursions (`e^{log b_j − m}`, `m` the largest
+/// log-density, so that the largest term is 1 and none overflows).
+#[inline(always)]
+pub(crate) fn exp_shifted(v: &[Lanes], m: f64, out: &mut [Lanes]) {
+    for (ok, vk) in out.iter_mut().zip(v) {
+        for l in 0..W {
+            ok[l] = vk[l] - m;
+        }
+    }
+    exp_slice(out.as_flattened_mut());
+}
+
+/// `v_j ← v_j · inv` on every lane (the normalisation by `1 / Σ_j v_j` of a
+/// scaled step).
+#[inline(always)]
+pub(crate) fn scale_lanes(v: &mut [Lanes], inv: f64) {
+    for vk in v.iter_mut() {
+        for x in vk.iter_mut() {
+            *x *= inv;
+        }
+    }
 }
 
 /// `Σ_j x_j y_j` in the order of [`sum_lanes`], by fused multiply-adds.

@@ -88,6 +88,7 @@ impl Forward {
 
 /// State posteriors and expected transitions of one sequence.
 #[derive(Debug, Clone, PartialEq)]
+#[non_exhaustive]
 pub struct Posteriors {
     /// `γ_t(i) = p(z_t = i | x_{1:T})`, `T × S` row-major.
     pub gamma: Vec<f64>,

@@ -8,6 +8,7 @@ use phasekit_emission::Emission;
 
 /// The most probable state path.
 #[derive(Debug, Clone, PartialEq)]
+#[non_exhaustive]
 pub struct ViterbiPath {
     /// `argmax_z p(z, x)`; ties go to the lower state index.
     pub states: Vec<usize>,

@@ -202,6 +202,7 @@ pub enum DurationEvent {
 
 /// What a duration M-step did.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[non_exhaustive]
 pub struct DurationReport {
     /// States that were kept or sit on a bound.
     pub events: Vec<DurationEvent>,
