@@ -650,6 +650,28 @@ pub struct Layout {
     pub velocity: Velocity,
 }
 
+impl Layout {
+    /// Checks that the feature indices are those its columns make (the human's
+    /// columns and velocities first, then the robot's), as a model or library
+    /// file read from disk must have them.
+    pub fn check_indices(&self) -> std::result::Result<(), String> {
+        let hv = matches!(self.velocity, Velocity::Both | Velocity::Human);
+        let rv = matches!(self.velocity, Velocity::Both | Velocity::Robot);
+        let nh = self.human_columns.len() * if hv { 2 } else { 1 };
+        let nr = self.robot_columns.len() * if rv { 2 } else { 1 };
+        if self.human != (0..nh).collect::<Vec<_>>()
+            || self.robot != (nh..nh + nr).collect::<Vec<_>>()
+            || self.features.len() != nh + nr
+        {
+            return Err("the layout's feature indices do not match its columns".into());
+        }
+        if self.robot_positions.iter().any(|&j| j >= self.robot.len()) {
+            return Err("robot position index out of range".into());
+        }
+        Ok(())
+    }
+}
+
 fn resolve(path: &Path, columns: &[String], patterns: &[String]) -> Result<Vec<usize>> {
     let mut out: Vec<usize> = Vec::new();
     for p in patterns {

@@ -43,6 +43,7 @@ pub mod commands;
 pub mod data;
 pub mod error;
 pub mod experiment;
+pub mod file_header;
 pub mod inputs;
 pub mod interrupt;
 pub mod library_file;

@@ -16,6 +16,7 @@
 
 use crate::data::{FeatureSpec, Layout, Table, Velocity};
 use crate::error::{CliError, Result};
+use crate::file_header::{check_header, FileKind};
 use crate::model_file::{MethodInfo, Standardisation};
 use crate::pipeline::{column_indices, Differencer};
 use phasekit_recognition::Library;
@@ -72,17 +73,8 @@ pub struct LibraryFile {
     pub library: Library,
 }
 
-#[derive(Deserialize)]
-struct Header {
-    format: Option<serde_json::Value>,
-    version: Option<serde_json::Value>,
-}
-
 /// `Some(format)` of a JSON file that has a string `format` field.
-pub fn file_format(text: &str) -> Option<String> {
-    let h: Header = serde_json::from_str(text).ok()?;
-    h.format.and_then(|f| f.as_str().map(str::to_string))
-}
+pub use crate::file_header::file_format;
 
 /// The error of a command that needs a single model and was given a library.
 pub fn not_a_model(path: &Path) -> CliError {
@@ -145,48 +137,24 @@ impl LibraryFile {
 
     /// Parses a library file's text; `path` names it in errors.
     pub fn from_json(text: &str, path: &Path) -> Result<Self> {
+        check_header(
+            text,
+            path,
+            &FileKind {
+                format: FORMAT,
+                version: VERSION,
+                noun: "library file",
+                remedy: "refit the library",
+            },
+            &[(crate::model_file::FORMAT, &|p: &Path| {
+                CliError::new(format!(
+                    "{}: this is a single model (made by `phasekit fit`), not a library of interactions: \
+                     fit a library with `phasekit fit --data DIR --library -o library.json` (DIR a folder of action folders)",
+                    p.display()
+                ))
+            })],
+        )?;
         let p = path.display();
-        let header: Header = serde_json::from_str(text).map_err(|e| {
-            let what = if e.is_eof() {
-                "it is truncated or empty"
-            } else {
-                "it is not valid JSON"
-            };
-            CliError::new(format!("{p}: not a phasekit library file ({what}: {e})"))
-        })?;
-        match header.format.as_ref().and_then(|f| f.as_str()) {
-            Some(FORMAT) => {}
-            Some(crate::model_file::FORMAT) => {
-                return Err(CliError::new(format!(
-                    "{p}: this is a single model (made by `phasekit fit`), not a library of interactions: \
-                     fit a library with `phasekit fit --data DIR --library -o library.json` (DIR a folder of action folders)"
-                )))
-            }
-            Some(other) => {
-                return Err(CliError::new(format!(
-                    "{p}: not a phasekit library file (its format is `{other}`, not `{FORMAT}`)"
-                )))
-            }
-            None => {
-                return Err(CliError::new(format!(
-                    "{p}: not a phasekit library file (no \"format\": \"{FORMAT}\" field)"
-                )))
-            }
-        }
-        match header.version.as_ref().and_then(|v| v.as_u64()) {
-            Some(VERSION) => {}
-            Some(v) => {
-                return Err(CliError::new(format!(
-                    "{p}: library file version {v} is not supported; this phasekit ({}) reads version {VERSION} — refit the library with this version",
-                    env!("CARGO_PKG_VERSION")
-                )))
-            }
-            None => {
-                return Err(CliError::new(format!(
-                    "{p}: library file has no valid \"version\" number"
-                )))
-            }
-        }
         let file: LibraryFile = serde_json::from_str(text)
             .map_err(|e| CliError::new(format!("{p}: corrupted library file: {e}")))?;
         file.validate()
@@ -216,19 +184,7 @@ impl LibraryFile {
         if roles.human() != l.human || roles.robot() != l.robot {
             return Err(CliError::new("the library's roles and the layout disagree"));
         }
-        let hv = matches!(l.velocity, Velocity::Both | Velocity::Human);
-        let rv = matches!(l.velocity, Velocity::Both | Velocity::Robot);
-        let nh = l.human_columns.len() * if hv { 2 } else { 1 };
-        let nr = l.robot_columns.len() * if rv { 2 } else { 1 };
-        if l.human != (0..nh).collect::<Vec<_>>()
-            || l.robot != (nh..nh + nr).collect::<Vec<_>>()
-            || d != nh + nr
-            || l.robot_positions.iter().any(|&j| j >= l.robot.len())
-        {
-            return Err(CliError::new(
-                "the layout's feature indices do not match its columns",
-            ));
-        }
+        l.check_indices().map_err(CliError::new)?;
         let names: Vec<&str> = self.actions.iter().map(|a| a.name.as_str()).collect();
         if names != self.library.names() {
             return Err(CliError::new(format!(
