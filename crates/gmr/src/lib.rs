@@ -65,10 +65,14 @@
 
 #![warn(missing_docs)]
 
+pub mod calibration;
 pub mod conditional;
 pub mod error;
 pub mod regression;
 
+pub use calibration::{
+    chi_squared_cdf, chi_squared_quantile, score_gaussian, GaussianScore,
+};
 pub use conditional::{check_io, Conditional};
 pub use error::{GmrError, Result};
 pub use regression::{
