@@ -13,7 +13,10 @@ fn ln_gamma_matches_factorials_and_half_integers() {
     let mut f = 1.0f64;
     for n in 1..30u32 {
         // Γ(n) = (n − 1)!
-        assert!((ln_gamma(n as f64) - f.ln()).abs() < 1e-12 * f.ln().abs().max(1.0), "n = {n}");
+        assert!(
+            (ln_gamma(n as f64) - f.ln()).abs() < 1e-12 * f.ln().abs().max(1.0),
+            "n = {n}"
+        );
         f *= n as f64;
     }
     // Γ(1/2) = √π.
@@ -30,7 +33,10 @@ fn chi_squared_two_dof_is_exponential() {
     for &q in &[0.01, 0.5, 0.9, 0.95, 0.99, 0.999] {
         let want = -2.0 * (1.0 - q as f64).ln();
         let got = chi_squared_quantile(q, 2).unwrap();
-        assert!((got - want).abs() < 1e-12 * want, "q = {q}: {got} vs {want}");
+        assert!(
+            (got - want).abs() < 1e-12 * want,
+            "q = {q}: {got} vs {want}"
+        );
     }
 }
 
@@ -48,7 +54,10 @@ fn chi_squared_quantiles_match_published_values() {
     ];
     for (d, want) in table {
         let got = chi_squared_quantile(0.95, d).unwrap();
-        assert!((got - want).abs() < 1e-10 * want, "d = {d}: {got} vs {want}");
+        assert!(
+            (got - want).abs() < 1e-10 * want,
+            "d = {d}: {got} vs {want}"
+        );
     }
     // One dof: P(1/2, x/2) = erf(√(x/2)); at x = 1 (one σ) 0.682689492137086.
     assert!((chi_squared_cdf(1.0, 1) - 0.682_689_492_137_086).abs() < 1e-13);
@@ -116,7 +125,10 @@ fn samples_of_the_predicted_gaussian_are_covered_at_the_nominal_rate() {
     assert!((coverage - 0.95).abs() < 0.0044, "coverage {coverage}");
     // E[−log N] = the entropy ½ (p (1 + ln 2π) + ln det Σ); sd of the mean ≈ √(p/2)/√n.
     let entropy = 0.5 * (3.0 * (1.0 + (2.0 * std::f64::consts::PI).ln()) + log_det);
-    assert!((nlpd / n as f64 - entropy).abs() < 4.0 * (1.5f64 / n as f64).sqrt(), "{nlpd}");
+    assert!(
+        (nlpd / n as f64 - entropy).abs() < 4.0 * (1.5f64 / n as f64).sqrt(),
+        "{nlpd}"
+    );
     // A covariance twice too small covers visibly less (the check can fail).
     let small: Vec<f64> = cov.iter().map(|c| c / 2.0).collect();
     let mut inside_small = 0;
