@@ -8,6 +8,7 @@ mod common;
 mod emission;
 mod files;
 mod hostile_input;
+mod hsmm_cli;
 mod json_flag;
 mod missing;
 mod novelty;
