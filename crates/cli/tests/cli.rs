@@ -619,7 +619,11 @@ fn bad_inputs_are_refused_with_located_errors() {
     );
     run(
         predict("v3.json"),
-        &["v3.json", "version 3 is not supported", "reads versions 1 to 2"],
+        &[
+            "v3.json",
+            "version 3 is not supported",
+            "reads versions 1 to 2",
+        ],
     );
     run(
         predict("broken.json"),

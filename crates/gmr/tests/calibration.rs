@@ -30,8 +30,8 @@ fn chi_squared_two_dof_is_exponential() {
         let want = 1.0 - (-x / 2.0f64).exp();
         assert!((chi_squared_cdf(x, 2) - want).abs() < 1e-14, "x = {x}");
     }
-    for &q in &[0.01, 0.5, 0.9, 0.95, 0.99, 0.999] {
-        let want = -2.0 * (1.0 - q as f64).ln();
+    for q in [0.01f64, 0.5, 0.9, 0.95, 0.99, 0.999] {
+        let want = -2.0 * (1.0 - q).ln();
         let got = chi_squared_quantile(q, 2).unwrap();
         assert!(
             (got - want).abs() < 1e-12 * want,
@@ -100,14 +100,14 @@ fn score_refuses_a_covariance_that_is_not_one() {
 #[test]
 fn samples_of_the_predicted_gaussian_are_covered_at_the_nominal_rate() {
     // Σ = A Aᵀ (3 dims, correlated); y = μ + A ε.
-    let a = [1.0, 0.0, 0.0, 0.5, 2.0, 0.0, -0.3, 0.7, 0.4];
+    let a: [f64; 9] = [1.0, 0.0, 0.0, 0.5, 2.0, 0.0, -0.3, 0.7, 0.4];
     let mut cov = [0.0; 9];
     for i in 0..3 {
         for j in 0..3 {
             cov[i * 3 + j] = (0..3).map(|k| a[i * 3 + k] * a[j * 3 + k]).sum();
         }
     }
-    let log_det: f64 = 2.0 * (a[0] * a[4] * a[8] as f64).abs().ln();
+    let log_det: f64 = 2.0 * (a[0] * a[4] * a[8]).abs().ln();
     let limit = chi_squared_quantile(0.95, 3).unwrap();
     let mut rng = ChaCha8Rng::seed_from_u64(17);
     let n = 40_000;
