@@ -64,7 +64,6 @@ impl Preset {
     /// Every preset, in the order the help lists them.
     pub const ALL: [Preset; 11] = [
         Preset::Hmm,
-        Preset::Hsmm,
         Preset::HmmCv,
         Preset::TscHmmCv,
         Preset::TscHmm,
@@ -74,6 +73,7 @@ impl Preset {
         Preset::TscHmmWorst,
         Preset::GmmTsc,
         Preset::Gmm,
+        Preset::Hsmm,
     ];
 
     /// The name [`Preset::from_str`] reads.
