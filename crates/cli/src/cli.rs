@@ -305,8 +305,10 @@ on the training demonstrations.
 
 Methods (presets): see the list below; settings per method with NAME:key=value,...
 (keys: states, tsc-states, window, reg, max-iter, tol, restarts, seed, select,
-max-states, rho, time-clusters), e.g. tsc-hmm:states=5,window=2 or
-gmm-tsc:states=auto,select=gmeans,rho=0.6. The command-line flags set the defaults of every key.
+max-states, rho, time-clusters, emission; hsmm: duration = gaussian|poisson|negative-binomial|
+non-parametric, max-duration = frames), e.g. tsc-hmm:states=5,window=2,
+gmm-tsc:states=auto,select=gmeans,rho=0.6 or hsmm:states=7,duration=poisson.
+The command-line flags set the defaults of every key.
 states=auto (--states auto) chooses the base states over 2..=max-states by BIC,
 or by G-means with select=gmeans (hmm, tsc-hmm*: λ's states; gmm-tsc: its mixture).";
 

@@ -7,6 +7,15 @@
 //! scaled to cm² (`unit_scale = 100` for data in metres); MSE is the mean over
 //! all frames of all test demonstrations; RMSE = √MSE per seed; mean ± std
 //! (population std) over seeds.
+//!
+//! Calibration (the same frames, the same position columns): a frame is
+//! covered when its true robot position lies in the predicted 95 % region, the
+//! χ² ellipsoid `(y − μ)ᵀ Σ⁻¹ (y − μ) ≤ χ²_{0.95}(p)` of the predictive mean
+//! `μ` and covariance `Σ` (the position block, `p` dims); coverage is the
+//! fraction of frames covered (a calibrated predictor covers 95 %). NLPD is
+//! the mean over frames of `−log N(y; μ, Σ)` in nats, with `y` in the reported
+//! unit (cm for data in metres: the density is per unit^p). Both per seed,
+//! then mean ± population std over seeds, as the MSE.
 
 use crate::data::{Action, FeatureSpec, Layout, Table};
 use phasekit_emission::{Frames, SequenceSet};
@@ -30,7 +39,9 @@ pub struct NamedMethod {
 /// `auto`), `tsc-states` (a number; `auto` or 0 for gmm-tsc's automatic transition
 /// clusters), `window`, `reg`, `max-iter`, `tol`, `restarts`, `seed`, `select`
 /// (`bic`|`gmeans`), `max-states`, `rho`, `time-clusters`, `emission` (`full`, `diag`,
-/// `spherical`, `tied`, `student-t`, `gmm-K`). The preset checks the result.
+/// `spherical`, `tied`, `student-t`, `gmm-K`), and for `hsmm` `duration` (`gaussian`,
+/// `poisson`, `negative-binomial`, `non-parametric`) and `max-duration` (frames).
+/// The preset checks the result.
 pub fn parse_method(spec: &str, defaults: &PresetOptions) -> Result<NamedMethod, String> {
     let (name, rest) = spec.split_once(':').unwrap_or((spec, ""));
     let mut o = defaults.to_builder();
@@ -62,6 +73,13 @@ pub fn parse_method(spec: &str, defaults: &PresetOptions) -> Result<NamedMethod,
             "max-states" => o = o.max_states(v.parse().map_err(|e| bad(&e))?),
             "rho" => o = o.rho(v.parse().map_err(|e| bad(&e))?),
             "time-clusters" => o = o.time_clusters(v.parse().map_err(|e| bad(&e))?),
+            "duration" => {
+                o = o.duration(
+                    v.parse::<phasekit_tsc::DurationFamily>()
+                        .map_err(|e| bad(&e))?,
+                )
+            }
+            "max-duration" => o = o.max_duration(Some(v.parse().map_err(|e| bad(&e))?)),
             "emission" => {
                 o = o.emission(
                     v.parse::<phasekit_tsc::EmissionKind>()
@@ -254,11 +272,35 @@ pub struct Row {
     pub per_seed_mse: Vec<Option<f64>>,
     /// Mean training time per seed, seconds.
     pub fit_seconds: f64,
+    /// Population std over seeds of the training time, seconds.
+    #[serde(default)]
+    pub fit_seconds_std: f64,
+    /// Mean over seeds of the fraction of scored frames whose true robot
+    /// position lies in the predicted 95 % region (χ² ellipsoid), in [0, 1].
+    #[serde(default = "nan")]
+    pub coverage_mean: f64,
+    /// Population std over seeds of the coverage.
+    #[serde(default = "nan")]
+    pub coverage_std: f64,
+    /// Mean over seeds of the mean negative log predictive density per frame
+    /// (nats, robot position in the reported unit).
+    #[serde(default = "nan")]
+    pub nlpd_mean: f64,
+    /// Population std over seeds of the NLPD.
+    #[serde(default = "nan")]
+    pub nlpd_std: f64,
     /// Mean prediction time per test frame, microseconds (batch path).
     pub predict_us_per_frame: f64,
     /// Total states of the predicting model (first successful seed).
     pub states: usize,
 }
+
+fn nan() -> f64 {
+    f64::NAN
+}
+
+/// The probability of the predicted region whose coverage is reported.
+pub const COVERAGE_LEVEL: f64 = 0.95;
 
 /// Features of every demonstration of an action, and the layout.
 pub struct Prepared {
@@ -320,6 +362,8 @@ pub fn subset(seed: u64, n: usize, size: usize) -> Vec<usize> {
 /// Outcome of one seed of one method.
 struct SeedResult {
     mse: f64,
+    coverage: f64,
+    nlpd: f64,
     fit_seconds: f64,
     predict_seconds: f64,
     frames: usize,
@@ -368,19 +412,33 @@ fn run_seed(
     let predictor = model.predictor(&roles).map_err(|e| e.to_string())?;
     let o = layout.robot.len();
     let (mut se, mut frames, mut predict_seconds) = (0.0, 0usize, 0.0);
+    let p = layout.robot_positions.len();
+    let limit = phasekit_gmr::chi_squared_quantile(COVERAGE_LEVEL, p).map_err(|e| e.to_string())?;
+    let jacobian: f64 = layout
+        .robot_positions
+        .iter()
+        .map(|&j| (scale[layout.robot[j]] * protocol.unit_scale).ln())
+        .sum();
+    let (mut residual, mut block, mut scratch) =
+        (vec![0.0; p], vec![0.0; p * p], vec![0.0; p * (p + 1)]);
+    let (mut inside, mut nlpd) = (0usize, 0.0);
     for (k, test) in prep.test.iter().enumerate() {
         let normed = norm(removed.map_or(test, |(_, t)| &t[k]));
         let human =
             phasekit_tsc::human_frames(Frames::new(&normed, d).map_err(|e| e.to_string())?, &roles)
                 .map_err(|e| e.to_string())?;
+        let input = Frames::new(&human, roles.human().len()).map_err(|e| e.to_string())?;
+        // The timed prediction is the mean only (what a controller asks for every
+        // frame); the covariance for the calibration columns comes from a second,
+        // untimed pass (its mean is the same to the bit).
         let clock = Instant::now();
-        let pred = predictor
-            .predict(
-                Frames::new(&human, roles.human().len()).map_err(|e| e.to_string())?,
-                false,
-            )
-            .map_err(|e| e.to_string())?;
+        let pred = predictor.predict(input, false).map_err(|e| e.to_string())?;
         predict_seconds += clock.elapsed().as_secs_f64();
+        let with_covariance = predictor.predict(input, true).map_err(|e| e.to_string())?;
+        let cov = with_covariance
+            .covariance
+            .as_ref()
+            .ok_or("the predictor returned no covariance")?;
         for (t, f) in test.chunks_exact(d).enumerate() {
             // A frame whose true robot position is not fully observed cannot be scored.
             if layout
@@ -395,6 +453,20 @@ fn run_seed(
                 let predicted = pred.mean[t * o + j] * scale[k] + shift[k];
                 se += ((predicted - f[k]) * protocol.unit_scale).powi(2);
             }
+            // Calibration in the model's (standardised) space, where the covariance
+            // lives: Mahalanobis² does not depend on the units; the log density
+            // is moved to the reported unit by the Jacobian Σ_j log(scale_j · unit_scale).
+            for (a, &j) in layout.robot_positions.iter().enumerate() {
+                let k = layout.robot[j];
+                residual[a] = (f[k] - shift[k]) / scale[k] - pred.mean[t * o + j];
+                for (b, &jb) in layout.robot_positions.iter().enumerate() {
+                    block[a * p + b] = cov[t * o * o + j * o + jb];
+                }
+            }
+            let score = phasekit_gmr::score_gaussian(&residual, &block, &mut scratch)
+                .map_err(|e| format!("test demonstration {k}, frame {t}: {e}"))?;
+            inside += usize::from(score.mahalanobis2 <= limit);
+            nlpd -= score.log_density - jacobian;
             frames += 1;
         }
     }
@@ -414,6 +486,8 @@ fn run_seed(
     }
     Ok(SeedResult {
         mse,
+        coverage: inside as f64 / frames as f64,
+        nlpd: nlpd / frames as f64,
         fit_seconds,
         predict_seconds,
         frames,
@@ -477,6 +551,15 @@ pub fn evaluate_action(
             let rmses: Vec<f64> = mses.iter().map(|v| v.sqrt()).collect();
             let (mse_mean, mse_std) = mean_std(&mses);
             let (rmse_mean, rmse_std) = mean_std(&rmses);
+            let stat =
+                |f: fn(&SeedResult) -> f64| mean_std(&ok.iter().map(|r| f(r)).collect::<Vec<_>>());
+            let (coverage_mean, coverage_std) = stat(|r| r.coverage);
+            let (nlpd_mean, nlpd_std) = stat(|r| r.nlpd);
+            let fit_seconds_std = if ok.is_empty() {
+                0.0
+            } else {
+                stat(|r| r.fit_seconds).1
+            };
             let frames: usize = ok.iter().map(|r| r.frames).sum();
             Row {
                 action: action.name.clone(),
@@ -497,6 +580,11 @@ pub fn evaluate_action(
                     .collect(),
                 // Folds from +0.0: `Sum` of no f64 is −0.0, printed "-0.000".
                 fit_seconds: ok.iter().fold(0.0, |a, r| a + r.fit_seconds) / ok.len().max(1) as f64,
+                fit_seconds_std,
+                coverage_mean,
+                coverage_std,
+                nlpd_mean,
+                nlpd_std,
                 predict_us_per_frame: 1e6 * ok.iter().fold(0.0, |a, r| a + r.predict_seconds)
                     / frames.max(1) as f64,
                 states: ok.first().map_or(0, |r| r.states),

@@ -24,8 +24,23 @@ use std::path::Path;
 
 /// The `format` field of a model file.
 pub const FORMAT: &str = "phasekit-model";
-/// The model file version this build writes and reads.
-pub const VERSION: u64 = 1;
+/// The newest model file version this build writes and reads.
+///
+/// * 1: HMM, TSC-HMM, GMM and gmm-tsc models;
+/// * 2: adds the `hsmm` model (a left-right HSMM, HSMM-GMR).
+///
+/// A file is written with the lowest version that describes its model
+/// ([`version_for`]), so a model an older phasekit can use stays readable by
+/// it; this build reads every version from 1 to [`VERSION`].
+pub const VERSION: u64 = 2;
+
+/// The lowest model-file version that describes `model` (see [`VERSION`]).
+pub fn version_for(model: &Model) -> u64 {
+    match model {
+        Model::Hsmm(_) => 2,
+        Model::Hmm(_) | Model::TscHmm { .. } | Model::Gmm(_) | Model::GmmTsc { .. } => 1,
+    }
+}
 
 /// Z-scoring of the features: `z = (x − mean) / std`, per feature.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -170,7 +185,7 @@ pub struct MethodInfo {
 pub struct ModelFile {
     /// Always [`FORMAT`].
     pub format: String,
-    /// Always [`VERSION`] when written by this build.
+    /// [`version_for`] the model when written by this build (at most [`VERSION`]).
     pub version: u64,
     /// The phasekit version that wrote it.
     #[serde(default)]
@@ -213,7 +228,7 @@ impl ModelFile {
     ) -> Self {
         ModelFile {
             format: FORMAT.into(),
-            version: VERSION,
+            version: version_for(&model),
             phasekit: env!("CARGO_PKG_VERSION").into(),
             layout,
             feature_spec,
@@ -297,10 +312,10 @@ impl ModelFile {
             }
         }
         match header.version.as_ref().and_then(|v| v.as_u64()) {
-            Some(VERSION) => {}
+            Some(1..=VERSION) => {}
             Some(v) => {
                 return Err(CliError::new(format!(
-                    "{p}: model file version {v} is not supported; this phasekit ({}) reads version {VERSION} — refit the model with this version",
+                    "{p}: model file version {v} is not supported; this phasekit ({}) reads versions 1 to {VERSION} — refit the model with this version",
                     env!("CARGO_PKG_VERSION")
                 )))
             }
@@ -323,6 +338,13 @@ impl ModelFile {
 
     /// Checks that the parts agree with each other.
     pub fn validate(&self) -> Result<()> {
+        if self.version < version_for(&self.model) {
+            return Err(CliError::new(format!(
+                "version {} does not describe its model (an hsmm model needs version {} or later)",
+                self.version,
+                version_for(&self.model)
+            )));
+        }
         let l = &self.layout;
         let d = l.features.len();
         if self.model.dim() != d {
@@ -395,6 +417,7 @@ impl ModelFile {
 fn gaussians(model: &Model) -> Vec<(&'static str, &dyn StateMoments)> {
     match model {
         Model::Hmm(h) => vec![("the HMM", h.emission() as &dyn StateMoments)],
+        Model::Hsmm(h) => vec![("the HSMM", h.emission() as &dyn StateMoments)],
         Model::TscHmm { model, .. } => {
             let mut v: Vec<(&'static str, &dyn StateMoments)> = vec![
                 ("the base HMM", model.base().emission()),

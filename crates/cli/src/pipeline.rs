@@ -386,6 +386,7 @@ fn unexplained(
         Frames::new(frames, d).map_err(|e| CliError::new(format!("{}: {e}", path.display())))?;
     let log_b = match &mf.model {
         Model::Hmm(h) => h.emission().log_density(f)?,
+        Model::Hsmm(h) => h.emission().log_density(f)?,
         Model::TscHmm { model, .. } => model.base().emission().log_density(f)?,
         Model::Gmm(g) | Model::GmmTsc { mixture: g, .. } => g.components().log_density(f)?,
     };

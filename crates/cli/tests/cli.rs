@@ -592,8 +592,8 @@ fn bad_inputs_are_refused_with_located_errors() {
     )
     .unwrap();
     std::fs::write(
-        d.join("v2.json"),
-        text.replacen("\"version\": 1", "\"version\": 2", 1),
+        d.join("v3.json"),
+        text.replacen("\"version\": 1", "\"version\": 3", 1),
     )
     .unwrap();
     std::fs::write(
@@ -618,8 +618,12 @@ fn bad_inputs_are_refused_with_located_errors() {
         &["foreign.json", "not a phasekit model file"],
     );
     run(
-        predict("v2.json"),
-        &["v2.json", "version 2 is not supported", "reads version 1"],
+        predict("v3.json"),
+        &[
+            "v3.json",
+            "version 3 is not supported",
+            "reads versions 1 to 2",
+        ],
     );
     run(
         predict("broken.json"),

@@ -3,6 +3,7 @@
 use phasekit_emission::EmissionError;
 use phasekit_gmm::GmmError;
 use phasekit_hmm::HmmError;
+use phasekit_hsmm::HsmmError;
 use thiserror::Error;
 
 /// What went wrong when building or running a regression.
@@ -26,6 +27,9 @@ pub enum GmrError {
     /// A mixture error.
     #[error(transparent)]
     Gmm(#[from] GmmError),
+    /// An HSMM error.
+    #[error(transparent)]
+    Hsmm(#[from] HsmmError),
 }
 
 /// Result alias of the GMR crate.

@@ -65,12 +65,16 @@
 
 #![warn(missing_docs)]
 
+pub mod calibration;
 pub mod conditional;
 pub mod error;
+pub mod hsmm;
 pub mod regression;
 
+pub use calibration::{chi_squared_cdf, chi_squared_quantile, score_gaussian, GaussianScore};
 pub use conditional::{check_io, Conditional};
 pub use error::{GmrError, Result};
+pub use hsmm::{HsmmRegression, OnlineHsmmRegression};
 pub use regression::{
     FrameEvidence, GmmRegression, HmmRegression, Mixer, OnlineRegression, Prediction, Regression,
 };

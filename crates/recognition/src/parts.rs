@@ -38,6 +38,11 @@ pub fn action_hmm(model: &Model) -> Result<Hmm<Gaussian>> {
         Model::Hmm(h) => gaussian_hmm(h),
         Model::TscHmm { model, .. } => gaussian_hmm(model.union().unwrap_or(model.base())),
         Model::Gmm(g) | Model::GmmTsc { mixture: g, .. } => mixture_as_hmm(g),
+        Model::Hsmm(_) => Err(RecognitionError::InvalidLibrary(
+            "an hsmm model has explicit durations: a library of interactions composes HMMs \
+             (fit the action with hmm or a tsc-hmm preset)"
+                .into(),
+        )),
     }
 }
 

@@ -10,6 +10,7 @@ use phasekit_emission::EmissionError;
 use phasekit_gmm::GmmError;
 use phasekit_gmr::GmrError;
 use phasekit_hmm::HmmError;
+use phasekit_hsmm::HsmmError;
 use std::fmt;
 
 /// How a message names a parameter: `(name, None)` the parameter itself,
@@ -101,6 +102,8 @@ pub enum TscError {
     Gmm(GmmError),
     /// A regression error.
     Gmr(GmrError),
+    /// An HSMM error.
+    Hsmm(HsmmError),
 }
 
 /// Why no transition segment was found (see [`TscError::NoTransitions`]).
@@ -249,6 +252,7 @@ impl TscError {
             TscError::Hmm(e) => e.to_string(),
             TscError::Gmm(e) => e.to_string(),
             TscError::Gmr(e) => e.to_string(),
+            TscError::Hsmm(e) => e.to_string(),
         }
     }
 }
@@ -271,6 +275,7 @@ impl std::error::Error for TscError {
             TscError::Hmm(e) => std::error::Error::source(e),
             TscError::Gmm(e) => std::error::Error::source(e),
             TscError::Gmr(e) => std::error::Error::source(e),
+            TscError::Hsmm(e) => std::error::Error::source(e),
             _ => None,
         }
     }
@@ -290,7 +295,8 @@ from_lower!(
     Emission(EmissionError),
     Hmm(HmmError),
     Gmm(GmmError),
-    Gmr(GmrError)
+    Gmr(GmrError),
+    Hsmm(HsmmError)
 );
 
 /// Result alias of the TSC crate.

@@ -76,6 +76,7 @@ pub mod detect;
 pub mod emission_choice;
 pub mod error;
 pub mod hmm_settings;
+pub mod hsmm_gmr;
 pub mod krishnan;
 pub mod method;
 pub mod model;
@@ -92,6 +93,7 @@ pub use cross_validation::cross_validate;
 pub use emission_choice::{AnyEmission, AnySplit, AnyStats, EmissionKind, StateMoments};
 pub use error::{NoTransitionCause, ParameterNamer, Result, TscError};
 pub use hmm_settings::{AutoStates, AutoStatesReport, HmmSettings, HmmSettingsBuilder};
+pub use hsmm_gmr::{DurationFamily, HsmmSettings, HsmmSettingsBuilder};
 pub use krishnan::{
     KrishnanReport, KrishnanSettings, KrishnanSettingsBuilder, KrishnanTsc, TimeClustering,
 };

@@ -4,6 +4,7 @@ use crate::cross_validation::cross_validate;
 use crate::emission_choice::{AnyEmission, EmissionKind};
 use crate::error::{Result, TscError};
 use crate::hmm_settings::HmmSettings;
+use crate::hsmm_gmr::HsmmSettings;
 use crate::krishnan::KrishnanSettings;
 use crate::model::Model;
 use crate::roles::Roles;
@@ -252,6 +253,8 @@ impl CrossValidation {
 pub enum Method {
     /// HMM on joint frames, HMM-GMR.
     Hmm(HmmSettings),
+    /// Left-right HSMM (explicit phase durations) on joint frames, HSMM-GMR.
+    Hsmm(HsmmSettings),
     /// TSC-HMM.
     TscHmm(TscSettings),
     /// Krishnan-style TSC over a GMM, static GMR over the GMM and the kept transition clusters.
@@ -278,6 +281,7 @@ impl Method {
     pub fn min_frames(&self) -> (usize, bool) {
         match self {
             Method::Hmm(s) => (s.min_states(), true),
+            Method::Hsmm(s) => (s.hmm().min_states(), true),
             Method::TscHmm(s) => (s.base().min_states(), true),
             Method::Gmm(s) => (s.components(), false),
             Method::GmmTsc { gmm, tsc } => {
@@ -310,6 +314,10 @@ impl Method {
                     summary.with_selection(&sel);
                 }
                 Ok((Model::Hmm(hmm), summary))
+            }
+            Method::Hsmm(s) => {
+                let (hsmm, r) = s.fit(data)?;
+                Ok((Model::Hsmm(hsmm), FitSummary::from_hsmm(&r)))
             }
             Method::TscHmm(s) => {
                 let clock = std::time::Instant::now();

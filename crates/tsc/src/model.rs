@@ -13,6 +13,7 @@ use phasekit_emission::{Frames, SequenceSet};
 use phasekit_gmm::Gmm;
 use phasekit_gmr::{GmmRegression, HmmRegression};
 use phasekit_hmm::Hmm;
+use phasekit_hsmm::Hsmm;
 use serde::{Deserialize, Serialize};
 
 /// A fitted model of any method (serialisable; a file whose parts disagree is
@@ -26,6 +27,8 @@ use serde::{Deserialize, Serialize};
 pub enum Model {
     /// An HMM on joint frames (of any emission the command can choose).
     Hmm(Hmm<AnyEmission>),
+    /// A left-right HSMM on joint frames (any emission, any duration family).
+    Hsmm(Hsmm<AnyEmission>),
     /// A TSC-HMM.
     TscHmm {
         /// The fitted model.
@@ -49,6 +52,7 @@ pub enum Model {
 #[serde(tag = "kind", rename_all = "kebab-case")]
 enum ModelRaw {
     Hmm(Hmm<AnyEmission>),
+    Hsmm(Hsmm<AnyEmission>),
     TscHmm {
         model: TscHmm,
         window: usize,
@@ -65,6 +69,7 @@ impl TryFrom<ModelRaw> for Model {
     fn try_from(r: ModelRaw) -> Result<Self> {
         let m = match r {
             ModelRaw::Hmm(h) => Model::Hmm(h),
+            ModelRaw::Hsmm(h) => Model::Hsmm(h),
             ModelRaw::TscHmm { model, window } => Model::TscHmm { model, window },
             ModelRaw::Gmm(g) => Model::Gmm(g),
             ModelRaw::GmmTsc { tsc, mixture } => Model::GmmTsc { tsc, mixture },
@@ -78,6 +83,7 @@ impl From<Model> for ModelRaw {
     fn from(m: Model) -> Self {
         match m {
             Model::Hmm(h) => ModelRaw::Hmm(h),
+            Model::Hsmm(h) => ModelRaw::Hsmm(h),
             Model::TscHmm { model, window } => ModelRaw::TscHmm { model, window },
             Model::Gmm(g) => ModelRaw::Gmm(g),
             Model::GmmTsc { tsc, mixture } => ModelRaw::GmmTsc { tsc, mixture },
@@ -90,6 +96,7 @@ impl Model {
     pub fn dim(&self) -> usize {
         match self {
             Model::Hmm(h) => h.dim(),
+            Model::Hsmm(h) => h.dim(),
             Model::TscHmm { model, .. } => model.base().dim(),
             Model::Gmm(g) | Model::GmmTsc { mixture: g, .. } => g.dim(),
         }
@@ -99,6 +106,7 @@ impl Model {
     pub fn n_states(&self) -> usize {
         match self {
             Model::Hmm(h) => h.n_states(),
+            Model::Hsmm(h) => h.n_states(),
             Model::TscHmm { model, .. } => model.n_states(),
             Model::Gmm(g) | Model::GmmTsc { mixture: g, .. } => g.n_components(),
         }
@@ -110,7 +118,7 @@ impl Model {
     /// [`KrishnanTsc`] check their own parts when made or read.)
     pub fn validate(&self) -> Result<()> {
         match self {
-            Model::Hmm(_) | Model::Gmm(_) | Model::TscHmm { .. } => Ok(()),
+            Model::Hmm(_) | Model::Hsmm(_) | Model::Gmm(_) | Model::TscHmm { .. } => Ok(()),
             Model::GmmTsc { tsc, mixture } => {
                 if mixture.dim() != tsc.transition_mixture().dim()
                     || mixture.n_components() <= tsc.kept().len()
@@ -138,6 +146,11 @@ impl Model {
         let hmm = |h: &Hmm<AnyEmission>| HmmRegression::new(h, roles.human(), roles.robot());
         Ok(match self {
             Model::Hmm(h) => Predictor::hmm(hmm(h)?),
+            Model::Hsmm(h) => Predictor::hsmm(phasekit_gmr::HsmmRegression::new(
+                h,
+                roles.human(),
+                roles.robot(),
+            )?),
             Model::TscHmm { model, .. } => match model.union() {
                 Some(u) => Predictor::hmm(hmm(u)?),
                 None => Predictor::gated(hmm(model.base())?, hmm(model.transition())?),
@@ -176,6 +189,24 @@ impl Model {
                 let labels = ViterbiLabeller(h).label(seq)?;
                 let flags = &disagreement_flags(h, roles, &one)?[0];
                 let transitions = flagged(flags);
+                let clusters = vec![None; transitions.len()];
+                Ok(Segmentation {
+                    labels,
+                    transitions,
+                    clusters,
+                    base_labels: None,
+                })
+            }
+            Model::Hsmm(h) => {
+                // The most probable segmentation; its segment boundaries are the transitions.
+                let path = h.viterbi(seq)?;
+                let transitions: Vec<usize> = path
+                    .segments
+                    .iter()
+                    .map(|s| s.start)
+                    .filter(|&t| t > 0)
+                    .collect();
+                let labels = path.states;
                 let clusters = vec![None; transitions.len()];
                 Ok(Segmentation {
                     labels,

@@ -11,6 +11,8 @@ use phasekit_gmr::{FrameEvidence, Prediction};
 type HmmRegression = phasekit_gmr::HmmRegression<AnyEmission>;
 type OnlineRegression = phasekit_gmr::OnlineRegression<AnyEmission>;
 type GmmRegression = phasekit_gmr::GmmRegression<AnyEmission>;
+type HsmmRegression = phasekit_gmr::HsmmRegression<AnyEmission>;
+type OnlineHsmmRegression = phasekit_gmr::OnlineHsmmRegression<AnyEmission>;
 
 /// Predicts the robot's dims from the human's, over whole sequences, causally
 /// (made by `Model::predictor`).
@@ -29,9 +31,16 @@ enum PredictorKind {
     },
     /// Static GMR.
     Gmm(GmmRegression),
+    /// HSMM-GMR (boxed: the variants stay of similar size).
+    Hsmm(Box<HsmmRegression>),
 }
 
 impl Predictor {
+    /// HSMM-GMR of one HSMM.
+    pub fn hsmm(r: HsmmRegression) -> Self {
+        Predictor(PredictorKind::Hsmm(Box::new(r)))
+    }
+
     /// HMM-GMR of one HMM.
     pub fn hmm(r: HmmRegression) -> Self {
         Predictor(PredictorKind::Hmm(r))
@@ -55,6 +64,7 @@ impl Predictor {
         match &self.0 {
             PredictorKind::Hmm(r) | PredictorKind::Gated { base: r, .. } => r.regression().n_out(),
             PredictorKind::Gmm(r) => r.regression().n_out(),
+            PredictorKind::Hsmm(r) => r.regression().n_out(),
         }
     }
 
@@ -63,6 +73,7 @@ impl Predictor {
         match &self.0 {
             PredictorKind::Hmm(r) => Ok(r.predict(human, with_covariance)?),
             PredictorKind::Gmm(r) => Ok(r.predict(human, with_covariance)?),
+            PredictorKind::Hsmm(r) => Ok(r.predict(human, with_covariance)?),
             PredictorKind::Gated { base, transition } => {
                 let mut a = base.predict(human, with_covariance)?;
                 let b = transition.predict(human, with_covariance)?;
@@ -94,6 +105,7 @@ impl Predictor {
         let o = self.n_out();
         OnlinePredictor(match &self.0 {
             PredictorKind::Hmm(r) => OnlineKind::Hmm(r.online()),
+            PredictorKind::Hsmm(r) => OnlineKind::Hsmm(Box::new(r.online())),
             PredictorKind::Gated { base, transition } => OnlineKind::Gated {
                 base: base.online(),
                 transition: Box::new(transition.online()),
@@ -131,6 +143,8 @@ enum OnlineKind {
         mean: Vec<f64>,
         covariance: Vec<f64>,
     },
+    /// Online HSMM-GMR (boxed: the variants stay of similar size).
+    Hsmm(Box<OnlineHsmmRegression>),
     /// Static GMR, frame by frame: the responsibilities, mean and covariance
     /// of the last frame, and scratch space.
     Gmm {
@@ -161,6 +175,14 @@ impl OnlinePredictor {
     ) -> Result<FrameEvidence> {
         Ok(match &mut self.0 {
             OnlineKind::Hmm(r) => {
+                if with_covariance {
+                    r.step_with_covariance(human)?;
+                } else {
+                    r.step(human)?;
+                }
+                r.evidence()
+            }
+            OnlineKind::Hsmm(r) => {
                 if with_covariance {
                     r.step_with_covariance(human)?;
                 } else {
@@ -203,6 +225,7 @@ impl OnlinePredictor {
     pub fn mean(&self) -> &[f64] {
         match &self.0 {
             OnlineKind::Hmm(r) => r.mean(),
+            OnlineKind::Hsmm(r) => r.mean(),
             OnlineKind::Gated { mean, .. } | OnlineKind::Gmm { mean, .. } => mean,
         }
     }
@@ -211,6 +234,7 @@ impl OnlinePredictor {
     pub fn covariance(&self) -> &[f64] {
         match &self.0 {
             OnlineKind::Hmm(r) => r.covariance(),
+            OnlineKind::Hsmm(r) => r.covariance(),
             OnlineKind::Gated { covariance, .. } | OnlineKind::Gmm { covariance, .. } => covariance,
         }
     }
@@ -221,6 +245,7 @@ impl OnlinePredictor {
     pub fn belief(&self) -> &[f64] {
         match &self.0 {
             OnlineKind::Hmm(r) | OnlineKind::Gated { base: r, .. } => r.belief(),
+            OnlineKind::Hsmm(r) => r.belief(),
             OnlineKind::Gmm { weights, .. } => weights,
         }
     }
@@ -231,6 +256,7 @@ impl OnlinePredictor {
     pub fn log_likelihood(&self) -> Option<f64> {
         match &self.0 {
             OnlineKind::Hmm(r) | OnlineKind::Gated { base: r, .. } => Some(r.log_likelihood()),
+            OnlineKind::Hsmm(r) => Some(r.log_likelihood()),
             OnlineKind::Gmm { .. } => None,
         }
     }
@@ -239,6 +265,7 @@ impl OnlinePredictor {
     pub fn reset(&mut self) {
         match &mut self.0 {
             OnlineKind::Hmm(r) => r.reset(),
+            OnlineKind::Hsmm(r) => r.reset(),
             OnlineKind::Gated {
                 base, transition, ..
             } => {

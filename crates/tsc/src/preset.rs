@@ -1,6 +1,8 @@
 //! Named methods (presets) and the options they share.
 //!
 //! * [`Preset::Hmm`] (`hmm`): the paper's baseline, an HMM on joint frames with HMM-GMR;
+//! * [`Preset::Hsmm`] (`hsmm`): a left-right HSMM (explicit phase durations) on joint
+//!   frames with HSMM-GMR ([`crate::hsmm_gmr`]);
 //! * [`Preset::TscHmm`] (`tsc-hmm`): the paper's TSC-HMM with the default composition
 //!   ([`DEFAULT_COMPOSITION`]); `tsc-hmm-union`, `tsc-hmm-frozen`, `tsc-hmm-gated` and
 //!   `tsc-hmm-worst` (λ_T trained on the frames the base predicts worst) name the alternatives;
@@ -16,6 +18,7 @@
 use crate::emission_choice::EmissionKind;
 use crate::error::{Result, TscError};
 use crate::hmm_settings::{AutoStates, HmmSettings};
+use crate::hsmm_gmr::{DurationFamily, HsmmSettings};
 use crate::krishnan::{KrishnanSettings, TimeClustering};
 use crate::method::{CrossValidation, GmmSettings, Method};
 use crate::select::Selector;
@@ -35,6 +38,8 @@ pub const AUTO_MIN_STATES: usize = 2;
 pub enum Preset {
     /// `hmm`: an HMM on joint frames, HMM-GMR (the paper's baseline).
     Hmm,
+    /// `hsmm`: a left-right HSMM on joint frames, HSMM-GMR.
+    Hsmm,
     /// `hmm-cv`: HMMs with `states..=states + tsc_states` states, chosen by 5-fold cross-validation.
     HmmCv,
     /// `tsc-hmm-cv`: those HMMs and the union TSC-HMM with windows 0, 2 and 5, chosen by cross-validation.
@@ -57,7 +62,7 @@ pub enum Preset {
 
 impl Preset {
     /// Every preset, in the order the help lists them.
-    pub const ALL: [Preset; 10] = [
+    pub const ALL: [Preset; 11] = [
         Preset::Hmm,
         Preset::HmmCv,
         Preset::TscHmmCv,
@@ -68,12 +73,14 @@ impl Preset {
         Preset::TscHmmWorst,
         Preset::GmmTsc,
         Preset::Gmm,
+        Preset::Hsmm,
     ];
 
     /// The name [`Preset::from_str`] reads.
     pub fn name(self) -> &'static str {
         match self {
             Preset::Hmm => "hmm",
+            Preset::Hsmm => "hsmm",
             Preset::HmmCv => "hmm-cv",
             Preset::TscHmmCv => "tsc-hmm-cv",
             Preset::TscHmm => "tsc-hmm",
@@ -95,7 +102,10 @@ impl Preset {
     /// states) and `gmm-tsc` (the frame mixture); the cross-validated presets
     /// choose their states by cross-validation, and `gmm` has no automatic count.
     pub fn offers_auto_states(self) -> bool {
-        !matches!(self, Preset::HmmCv | Preset::TscHmmCv | Preset::Gmm)
+        !matches!(
+            self,
+            Preset::HmmCv | Preset::TscHmmCv | Preset::Gmm | Preset::Hsmm
+        )
     }
 }
 
@@ -140,6 +150,14 @@ pub struct PresetOptions {
     seed: u64,
     #[serde(default, skip_serializing_if = "EmissionKind::is_default")]
     emission: EmissionKind,
+    #[serde(default, skip_serializing_if = "is_default_duration")]
+    duration: DurationFamily,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    max_duration: Option<usize>,
+}
+
+fn is_default_duration(d: &DurationFamily) -> bool {
+    *d == DurationFamily::default()
 }
 
 /// The serialised form of [`PresetOptions`], before validation.
@@ -165,6 +183,10 @@ struct PresetOptionsRaw {
     seed: u64,
     #[serde(default)]
     emission: EmissionKind,
+    #[serde(default)]
+    duration: DurationFamily,
+    #[serde(default)]
+    max_duration: Option<usize>,
 }
 
 fn default_max_states() -> usize {
@@ -193,6 +215,8 @@ impl TryFrom<PresetOptionsRaw> for PresetOptions {
             restarts: r.restarts,
             seed: r.seed,
             emission: r.emission,
+            duration: r.duration,
+            max_duration: r.max_duration,
         })
         .build()
     }
@@ -218,6 +242,8 @@ impl Default for PresetOptions {
             restarts: 1,
             seed: 0,
             emission: EmissionKind::default(),
+            duration: DurationFamily::default(),
+            max_duration: None,
         }
     }
 }
@@ -303,6 +329,16 @@ impl PresetOptionsBuilder {
     /// (`gmm`, `gmm-tsc`).
     pub fn emission(mut self, emission: EmissionKind) -> Self {
         self.0.emission = emission;
+        self
+    }
+    /// The duration family of `hsmm`.
+    pub fn duration(mut self, d: DurationFamily) -> Self {
+        self.0.duration = d;
+        self
+    }
+    /// The longest phase of `hsmm` in frames (`None`: suggested from the data).
+    pub fn max_duration(mut self, d: Option<usize>) -> Self {
+        self.0.max_duration = d;
         self
     }
     /// Validates the options, naming the first bad one (the checks that depend
@@ -409,6 +445,14 @@ impl PresetOptions {
     pub fn emission(&self) -> EmissionKind {
         self.emission
     }
+    /// The duration family of `hsmm`.
+    pub fn duration(&self) -> DurationFamily {
+        self.duration
+    }
+    /// The longest phase of `hsmm` (`None`: suggested from the data).
+    pub fn max_duration(&self) -> Option<usize> {
+        self.max_duration
+    }
 }
 
 impl Method {
@@ -460,8 +504,22 @@ impl Method {
                 .emission(o.emission)
                 .build()
         };
+        let hsmm_only = o.duration != DurationFamily::default() || o.max_duration.is_some();
+        if hsmm_only && preset != Preset::Hsmm {
+            return Err(TscError::InvalidSetting {
+                name: "duration",
+                reason: format!("duration and max-duration are settings of hsmm, not `{preset}`"),
+            });
+        }
         Ok(match preset {
             Preset::Hmm => Method::Hmm(hmm),
+            Preset::Hsmm => Method::Hsmm(
+                HsmmSettings::builder()
+                    .hmm(hmm)
+                    .duration(o.duration)
+                    .max_duration(o.max_duration)
+                    .build()?,
+            ),
             Preset::TscHmm => tsc(DEFAULT_COMPOSITION, Detector::Disagreement)?,
             Preset::TscHmmUnion => tsc(Composition::Union, Detector::Disagreement)?,
             Preset::TscHmmFrozen => tsc(Composition::UnionFrozen, Detector::Disagreement)?,

@@ -141,6 +141,17 @@ impl FitSummary {
         )
     }
 
+    /// The summary of an HSMM fit.
+    pub(crate) fn from_hsmm(r: &phasekit_hsmm::HsmmFitReport) -> Self {
+        Self::from_parts(
+            r.iterations,
+            &r.log_likelihood,
+            r.converged,
+            r.fit_seconds,
+            &r.m_steps,
+        )
+    }
+
     /// The summary of a mixture fit.
     pub(crate) fn from_gmm(r: &GmmFitReport) -> Self {
         Self::from_parts(

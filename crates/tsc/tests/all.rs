@@ -4,6 +4,7 @@
 
 mod emissions;
 mod gmeans_states;
+mod hsmm_preset;
 mod model_files_v1;
 mod settings_and_defects;
 mod tsc;

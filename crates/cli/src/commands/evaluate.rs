@@ -88,12 +88,19 @@ fn metric_text(spec: &FeatureSpec, p: &Protocol, unit: &Unit) -> String {
          a seed whose MSE is not finite (an overflow) is a failure. \
          Seed s trains on a random subset ({} training demonstrations, drawn with ChaCha8 from seed s). \
          paired_change = mean over seeds of (MSE − MSE_reference) / MSE_reference; paired_won = fraction of seeds with a lower MSE; the same against the second method in the *_second fields. \
-         constant-mean predicts the mean robot position of all training demonstrations at every frame.{}",
+         constant-mean predicts the mean robot position of all training demonstrations at every frame (no uncertainty: no coverage, no NLPD). \
+         coverage 95 %: fraction (printed in %) of the scored frames whose true robot position lies in the predicted 95 % region, \
+         the χ² ellipsoid (y − μ)ᵀ Σ⁻¹ (y − μ) ≤ χ²_0.95(p) of the predictive mean μ and covariance Σ of the p position columns (7.815 for p = 3) \
+         (a calibrated predictor covers 95 %; more means bands too wide, less too narrow). \
+         NLPD: mean over the scored frames of −log N(y; μ, Σ), in nats, y in {} (a density per {}^p; lower is better). \
+         fit: training time per seed, in seconds. Coverage, NLPD and fit time: mean ± population std over seeds.{}",
         spec.robot.join(", "),
         p.unit_scale,
         unit.squared(),
         unit.name,
         p.train_size.map_or("all but two".to_string(), |n| n.to_string()),
+        unit.name,
+        unit.name,
         p.removal.map_or(String::new(), |r| format!(
             " Robustness run: {:.0} % of the selected values removed at random ({}) from every seed's training \
              demonstrations and from the test demonstrations' human columns, before the velocities are computed; \
@@ -117,7 +124,7 @@ pub fn markdown(r: &Report) -> String {
     let unit = unit_of(&r.protocol);
     let (u2, u) = (unit.squared(), &unit.name);
     let mut s = format!(
-        "| action | method | states | MSE ({u2}) | RMSE ({u}) | seeds | failures | fit (s) | predict (µs/frame) | Δ MSE vs {0} | seeds won | Δ MSE vs {1} | seeds won |\n|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+        "| action | method | states | MSE ({u2}) | RMSE ({u}) | seeds | failures | coverage 95 % (%) | NLPD (nats) | fit (s) | predict (µs/frame) | Δ MSE vs {0} | seeds won | Δ MSE vs {1} | seeds won |\n|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
         r.protocol.methods.first().map_or("first", |m| m.as_str()),
         r.protocol.methods.get(1).map_or("second", |m| m.as_str())
     );
@@ -139,7 +146,7 @@ pub fn markdown(r: &Report) -> String {
         };
         if x.baseline {
             s.push_str(&format!(
-                "| {} | {} | – | {} | {} | – | – | – | – | – | – | – | – |\n",
+                "| {} | {} | – | {} | {} | – | – | – | – | – | – | – | – | – | – |\n",
                 row.action,
                 row.method,
                 sig4(row.mse_mean),
@@ -149,6 +156,12 @@ pub fn markdown(r: &Report) -> String {
             // A method that failed on every seed has no time and no state count to show.
             let (states, fit, predict) = if row.seeds == 0 {
                 ("–".to_string(), "–".to_string(), "–".to_string())
+            } else if row.seeds > 1 {
+                (
+                    row.states.to_string(),
+                    format!("{:.3} ± {:.3}", row.fit_seconds, row.fit_seconds_std),
+                    format!("{:.1}", row.predict_us_per_frame),
+                )
             } else {
                 (
                     row.states.to_string(),
@@ -156,8 +169,21 @@ pub fn markdown(r: &Report) -> String {
                     format!("{:.1}", row.predict_us_per_frame),
                 )
             };
+            let coverage = if row.coverage_mean.is_finite() {
+                if row.seeds > 1 {
+                    format!(
+                        "{:.1} ± {:.1}",
+                        100.0 * row.coverage_mean,
+                        100.0 * row.coverage_std
+                    )
+                } else {
+                    format!("{:.1}", 100.0 * row.coverage_mean)
+                }
+            } else {
+                "–".to_string()
+            };
             s.push_str(&format!(
-                "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |\n",
+                "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |\n",
                 row.action,
                 row.method,
                 states,
@@ -165,6 +191,8 @@ pub fn markdown(r: &Report) -> String {
                 pm(row.rmse_mean, row.rmse_std, row.seeds),
                 row.seeds,
                 row.failures.len(),
+                coverage,
+                pm(row.nlpd_mean, row.nlpd_std, row.seeds),
                 fit,
                 predict,
                 change,
@@ -185,16 +213,26 @@ pub fn markdown_document(r: &Report) -> String {
 
 /// The CSV of a report: one line per row, with both paired comparisons (against the
 /// first method: `reference`, `paired_change`, `paired_won`, `paired_seeds`; against the
-/// second: `second_reference`, `paired_change_second`, `paired_won_second`).
+/// second: `second_reference`, `paired_change_second`, `paired_won_second`), then
+/// the calibration: `coverage95_mean`/`_std` (fraction in [0, 1]), `nlpd_mean`/`_std`
+/// (nats, `nlpd_unit` the unit the density is per), `fit_seconds_std`. Empty where
+/// there is no value (the constant-mean baseline has no uncertainty).
 pub fn csv(r: &Report) -> String {
-    let mut s = String::from("action,method,states,mse_mean,mse_std,rmse_mean,rmse_std,seeds,failures,fit_seconds,predict_us_per_frame,paired_change,paired_won,baseline,reference,paired_seeds,second_reference,paired_change_second,paired_won_second,unit\n");
+    let mut s = String::from("action,method,states,mse_mean,mse_std,rmse_mean,rmse_std,seeds,failures,fit_seconds,predict_us_per_frame,paired_change,paired_won,baseline,reference,paired_seeds,second_reference,paired_change_second,paired_won_second,unit,coverage95_mean,coverage95_std,nlpd_mean,nlpd_std,nlpd_unit,fit_seconds_std\n");
     let unit = output::csv_field(&unit_of(&r.protocol).name);
     let opt = |v: Option<f64>| v.map_or(String::new(), |v| v.to_string());
     let name = |v: &Option<String>| v.as_deref().map_or(String::new(), output::csv_field);
+    let fin = |v: f64| {
+        if v.is_finite() {
+            v.to_string()
+        } else {
+            String::new()
+        }
+    };
     for x in &r.results {
         let row = &x.row;
         s.push_str(&format!(
-            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{unit}\n",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{unit},{},{},{},{},{unit},{}\n",
             output::csv_field(&row.action),
             output::csv_field(&row.method),
             row.states,
@@ -214,6 +252,11 @@ pub fn csv(r: &Report) -> String {
             name(&x.second_reference),
             opt(x.paired_change_second),
             opt(x.paired_won_second),
+            fin(row.coverage_mean),
+            fin(row.coverage_std),
+            fin(row.nlpd_mean),
+            fin(row.nlpd_std),
+            row.fit_seconds_std,
         ));
     }
     s
@@ -255,6 +298,11 @@ fn baseline_row(action: &str, mse: f64) -> Row {
         failures: Vec::new(),
         per_seed_mse: vec![Some(mse)],
         fit_seconds: 0.0,
+        fit_seconds_std: 0.0,
+        coverage_mean: f64::NAN,
+        coverage_std: f64::NAN,
+        nlpd_mean: f64::NAN,
+        nlpd_std: f64::NAN,
         predict_us_per_frame: 0.0,
         states: 0,
     }

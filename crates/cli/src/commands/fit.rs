@@ -71,6 +71,7 @@ impl FitReport {
 pub fn emission_name(model: &Model) -> String {
     match model {
         Model::Hmm(h) => h.emission().kind().to_string(),
+        Model::Hsmm(h) => h.emission().kind().to_string(),
         Model::TscHmm { model, .. } => model.base().emission().kind().to_string(),
         Model::Gmm(g) | Model::GmmTsc { mixture: g, .. } => g.components().kind().to_string(),
     }

@@ -157,7 +157,7 @@ fn window_of(method: &Method) -> Vec<(usize, bool)> {
             .iter()
             .flat_map(|(_, m)| window_of(m))
             .collect(),
-        Method::Hmm(_) | Method::Gmm(_) => Vec::new(),
+        Method::Hmm(_) | Method::Hsmm(_) | Method::Gmm(_) => Vec::new(),
     }
 }
 

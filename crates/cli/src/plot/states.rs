@@ -86,6 +86,7 @@ pub fn model_ellipses_projected(mf: &ModelFile, proj: &Projection) -> Vec<Ellips
     let all = |n: usize| (0..n).collect::<Vec<_>>();
     match &mf.model {
         Model::Hmm(h) => gaussians(h.emission(), &all(h.n_states()), usize::MAX, proj, mf, ""),
+        Model::Hsmm(h) => gaussians(h.emission(), &all(h.n_states()), usize::MAX, proj, mf, ""),
         Model::TscHmm { model, .. } => {
             let sb = model.base().n_states();
             match model.union() {

@@ -1,0 +1,142 @@
+//! Scoring Gaussian predictions: χ² quantiles against closed forms and
+//! published values, Mahalanobis² and log density against a hand-computed
+//! case, and coverage / NLPD of samples from the predicted Gaussian (Monte Carlo).
+
+use phasekit_gmr::calibration::{ln_gamma, regularised_gamma_p};
+use phasekit_gmr::{chi_squared_cdf, chi_squared_quantile, score_gaussian};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, StandardNormal};
+
+#[test]
+fn ln_gamma_matches_factorials_and_half_integers() {
+    let mut f = 1.0f64;
+    for n in 1..30u32 {
+        // Γ(n) = (n − 1)!
+        assert!(
+            (ln_gamma(n as f64) - f.ln()).abs() < 1e-12 * f.ln().abs().max(1.0),
+            "n = {n}"
+        );
+        f *= n as f64;
+    }
+    // Γ(1/2) = √π.
+    assert!((ln_gamma(0.5) - std::f64::consts::PI.sqrt().ln()).abs() < 1e-14);
+}
+
+#[test]
+fn chi_squared_two_dof_is_exponential() {
+    // χ²(2) = Exp(1/2): F(x) = 1 − e^{−x/2}, quantile −2 ln(1 − q).
+    for &x in &[0.01, 0.5, 1.0, 3.0, 5.991, 10.0, 40.0] {
+        let want = 1.0 - (-x / 2.0f64).exp();
+        assert!((chi_squared_cdf(x, 2) - want).abs() < 1e-14, "x = {x}");
+    }
+    for q in [0.01f64, 0.5, 0.9, 0.95, 0.99, 0.999] {
+        let want = -2.0 * (1.0 - q).ln();
+        let got = chi_squared_quantile(q, 2).unwrap();
+        assert!(
+            (got - want).abs() < 1e-12 * want,
+            "q = {q}: {got} vs {want}"
+        );
+    }
+}
+
+#[test]
+fn chi_squared_quantiles_match_published_values() {
+    // 95 % quantiles (R: qchisq(0.95, d)).
+    let table = [
+        (1, 3.841_458_820_694_124),
+        (2, 5.991_464_547_107_979),
+        (3, 7.814_727_903_251_178),
+        (4, 9.487_729_036_781_154),
+        (6, 12.591_587_243_743_977),
+        (10, 18.307_038_053_275_146),
+        (30, 43.772_971_825_742_19),
+    ];
+    for (d, want) in table {
+        let got = chi_squared_quantile(0.95, d).unwrap();
+        assert!(
+            (got - want).abs() < 1e-10 * want,
+            "d = {d}: {got} vs {want}"
+        );
+    }
+    // One dof: P(1/2, x/2) = erf(√(x/2)); at x = 1 (one σ) 0.682689492137086.
+    assert!((chi_squared_cdf(1.0, 1) - 0.682_689_492_137_086).abs() < 1e-13);
+    assert!((regularised_gamma_p(3.0, 0.0)).abs() == 0.0);
+}
+
+#[test]
+fn chi_squared_quantile_rejects_nonsense() {
+    assert!(chi_squared_quantile(0.95, 0).is_err());
+    assert!(chi_squared_quantile(1.0, 3).is_err());
+    assert!(chi_squared_quantile(0.0, 3).is_err());
+    assert!(chi_squared_quantile(f64::NAN, 3).is_err());
+}
+
+#[test]
+fn score_matches_a_hand_computed_case() {
+    // Σ = [[4, 2], [2, 3]], r = (1, 2): Σ⁻¹ = [[3, −2], [−2, 4]] / 8,
+    // m² = (3·1 − 4·1·2 + 4·4) / 8 = 11/8, det Σ = 8.
+    let mut scratch = [0.0; 6];
+    let s = score_gaussian(&[1.0, 2.0], &[4.0, 2.0, 2.0, 3.0], &mut scratch).unwrap();
+    assert!((s.mahalanobis2 - 11.0 / 8.0).abs() < 1e-15);
+    let want = -0.5 * (2.0 * (2.0 * std::f64::consts::PI).ln() + 8f64.ln() + 11.0 / 8.0);
+    assert!((s.log_density - want).abs() < 1e-14);
+    // One dim: N(0; 1, 0.25) = exp(−2) / √(2π · 0.25).
+    let s = score_gaussian(&[-1.0], &[0.25], &mut scratch).unwrap();
+    assert!((s.mahalanobis2 - 4.0).abs() < 1e-15);
+    let want = -2.0 - 0.5 * (2.0 * std::f64::consts::PI * 0.25).ln();
+    assert!((s.log_density - want).abs() < 1e-14);
+}
+
+#[test]
+fn score_refuses_a_covariance_that_is_not_one() {
+    let mut scratch = [0.0; 6];
+    assert!(score_gaussian(&[1.0, 2.0], &[1.0, 2.0, 2.0, 1.0], &mut scratch).is_err());
+    assert!(score_gaussian(&[1.0, 2.0], &[1.0, 0.0, 0.0, f64::NAN], &mut scratch).is_err());
+    assert!(score_gaussian(&[1.0, 2.0], &[1.0, 0.0, 0.0], &mut scratch).is_err());
+    assert!(score_gaussian(&[1.0, 2.0], &[1.0, 0.0, 0.0, 1.0], &mut [0.0; 4]).is_err());
+}
+
+#[test]
+fn samples_of_the_predicted_gaussian_are_covered_at_the_nominal_rate() {
+    // Σ = A Aᵀ (3 dims, correlated); y = μ + A ε.
+    let a: [f64; 9] = [1.0, 0.0, 0.0, 0.5, 2.0, 0.0, -0.3, 0.7, 0.4];
+    let mut cov = [0.0; 9];
+    for i in 0..3 {
+        for j in 0..3 {
+            cov[i * 3 + j] = (0..3).map(|k| a[i * 3 + k] * a[j * 3 + k]).sum();
+        }
+    }
+    let log_det: f64 = 2.0 * (a[0] * a[4] * a[8]).abs().ln();
+    let limit = chi_squared_quantile(0.95, 3).unwrap();
+    let mut rng = ChaCha8Rng::seed_from_u64(17);
+    let n = 40_000;
+    let (mut inside, mut nlpd) = (0usize, 0.0);
+    let mut scratch = [0.0; 12];
+    for _ in 0..n {
+        let e: [f64; 3] = std::array::from_fn(|_| StandardNormal.sample(&mut rng));
+        let r: [f64; 3] = std::array::from_fn(|i| (0..3).map(|k| a[i * 3 + k] * e[k]).sum());
+        let s = score_gaussian(&r, &cov, &mut scratch).unwrap();
+        inside += usize::from(s.mahalanobis2 <= limit);
+        nlpd -= s.log_density;
+    }
+    let coverage = inside as f64 / n as f64;
+    // Binomial sd √(0.95 · 0.05 / n) ≈ 0.0011: 4 sd.
+    assert!((coverage - 0.95).abs() < 0.0044, "coverage {coverage}");
+    // E[−log N] = the entropy ½ (p (1 + ln 2π) + ln det Σ); sd of the mean ≈ √(p/2)/√n.
+    let entropy = 0.5 * (3.0 * (1.0 + (2.0 * std::f64::consts::PI).ln()) + log_det);
+    assert!(
+        (nlpd / n as f64 - entropy).abs() < 4.0 * (1.5f64 / n as f64).sqrt(),
+        "{nlpd}"
+    );
+    // A covariance twice too small covers visibly less (the check can fail).
+    let small: Vec<f64> = cov.iter().map(|c| c / 2.0).collect();
+    let mut inside_small = 0;
+    for _ in 0..n {
+        let e: [f64; 3] = std::array::from_fn(|_| StandardNormal.sample(&mut rng));
+        let r: [f64; 3] = std::array::from_fn(|i| (0..3).map(|k| a[i * 3 + k] * e[k]).sum());
+        let s = score_gaussian(&r, &small, &mut scratch).unwrap();
+        inside_small += usize::from(s.mahalanobis2 <= limit);
+    }
+    assert!((inside_small as f64 / n as f64) < 0.85);
+}
