@@ -53,11 +53,14 @@ pub enum Preset {
     GmmTsc,
     /// `gmm`: static GMR from a GMM.
     Gmm,
+    /// `auto`: the family, states, regularisation and emission chosen by
+    /// cross-validation on the training demonstrations ([`crate::auto`]).
+    Auto,
 }
 
 impl Preset {
     /// Every preset, in the order the help lists them.
-    pub const ALL: [Preset; 10] = [
+    pub const ALL: [Preset; 11] = [
         Preset::Hmm,
         Preset::HmmCv,
         Preset::TscHmmCv,
@@ -68,6 +71,7 @@ impl Preset {
         Preset::TscHmmWorst,
         Preset::GmmTsc,
         Preset::Gmm,
+        Preset::Auto,
     ];
 
     /// The name [`Preset::from_str`] reads.
@@ -83,6 +87,7 @@ impl Preset {
             Preset::TscHmmWorst => "tsc-hmm-worst",
             Preset::GmmTsc => "gmm-tsc",
             Preset::Gmm => "gmm",
+            Preset::Auto => "auto",
         }
     }
 
@@ -95,7 +100,10 @@ impl Preset {
     /// states) and `gmm-tsc` (the frame mixture); the cross-validated presets
     /// choose their states by cross-validation, and `gmm` has no automatic count.
     pub fn offers_auto_states(self) -> bool {
-        !matches!(self, Preset::HmmCv | Preset::TscHmmCv | Preset::Gmm)
+        !matches!(
+            self,
+            Preset::HmmCv | Preset::TscHmmCv | Preset::Gmm | Preset::Auto
+        )
     }
 }
 
@@ -479,6 +487,7 @@ impl Method {
                 Detector::WorstPrediction { fraction: 0.15 },
             )?,
             Preset::Gmm => Method::Gmm(gmm()?),
+            Preset::Auto => crate::auto::AutoSettings::default().method(o)?,
             Preset::HmmCv | Preset::TscHmmCv => {
                 let mut candidates: Vec<(String, Method)> = (o.states..=o.states + o.tsc_states)
                     .map(|s| {
