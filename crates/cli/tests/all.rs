@@ -3,6 +3,7 @@
 //! Each file stays a module of its own; add a `mod` line for a new one.
 
 mod common;
+mod auto_cli;
 mod cli;
 mod emission;
 mod files;
