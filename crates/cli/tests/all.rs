@@ -2,9 +2,9 @@
 //! instead of one per file keeps the test command inside its time budget.
 //! Each file stays a module of its own; add a `mod` line for a new one.
 
-mod common;
 mod auto_cli;
 mod cli;
+mod common;
 mod emission;
 mod files;
 mod hostile_input;
