@@ -310,7 +310,10 @@ non-parametric, max-duration = frames), e.g. tsc-hmm:states=5,window=2,
 gmm-tsc:states=auto,select=gmeans,rho=0.6 or hsmm:states=7,duration=poisson.
 The command-line flags set the defaults of every key.
 states=auto (--states auto) chooses the base states over 2..=max-states by BIC,
-or by G-means with select=gmeans (hmm, tsc-hmm*: λ's states; gmm-tsc: its mixture).";
+or by G-means with select=gmeans (hmm, tsc-hmm*: λ's states; gmm-tsc: its mixture).
+auto chooses the family, states, reg and emission by cross-validated prediction error
+on the training demonstrations (keys: grid=small|default, folds=K, families=hmm+tsc-hmm+gmm,
+halving=on|off); fit --format md shows its cross-validation table.";
 
 /// The help text after a command's options: examples, then the presets.
 fn with_presets(examples: &str) -> String {

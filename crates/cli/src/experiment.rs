@@ -46,6 +46,7 @@ pub fn parse_method(spec: &str, defaults: &PresetOptions) -> Result<NamedMethod,
     let (name, rest) = spec.split_once(':').unwrap_or((spec, ""));
     let mut o = defaults.to_builder();
     let mut seen: Vec<&str> = Vec::new();
+    let mut auto = phasekit_tsc::AutoSettings::builder();
     for kv in rest.split(',').filter(|s| !s.is_empty()) {
         let (k, v) = kv
             .split_once('=')
@@ -58,6 +59,19 @@ pub fn parse_method(spec: &str, defaults: &PresetOptions) -> Result<NamedMethod,
         }
         seen.push(k);
         let bad = |e: &dyn std::fmt::Display| format!("`{kv}` in `{spec}`: {e}");
+        if name == "auto" {
+            // auto's own keys; the grid sets the model's, so giving one is a mistake.
+            if phasekit_tsc::AutoSettings::is_key(k) {
+                auto = phasekit_tsc::AutoSettings::set(auto, k, v)
+                    .map_err(|e| bad(&crate::error::CliError::from(e).message))?;
+                continue;
+            }
+            if matches!(k, "states" | "tsc-states" | "window" | "reg" | "emission") {
+                return Err(bad(&format!(
+                    "auto chooses `{k}` by cross-validation; narrow its search with grid=small|default or families=hmm+tsc-hmm+gmm"
+                )));
+            }
+        }
         match k {
             "states" if v == "auto" => o = o.auto_states(),
             "states" => o = o.states(v.parse().map_err(|e| bad(&e))?),
@@ -92,7 +106,13 @@ pub fn parse_method(spec: &str, defaults: &PresetOptions) -> Result<NamedMethod,
     let cli = |e: phasekit_tsc::TscError| crate::error::CliError::from(e).message;
     let o = o.build().map_err(|e| format!("`{spec}`: {}", cli(e)))?;
     let preset = name.parse::<phasekit_tsc::Preset>().map_err(cli)?;
-    let method = Method::preset(preset, &o).map_err(cli)?;
+    let method = if preset == phasekit_tsc::Preset::Auto {
+        auto.build()
+            .and_then(|a| a.method(&o))
+            .map_err(|e| format!("`{spec}`: {}", cli(e)))?
+    } else {
+        Method::preset(preset, &o).map_err(cli)?
+    };
     Ok(NamedMethod {
         label: spec.to_string(),
         method,
@@ -293,6 +313,11 @@ pub struct Row {
     pub predict_us_per_frame: f64,
     /// Total states of the predicting model (first successful seed).
     pub states: usize,
+    /// What a choosing method (`auto`, the `-cv` presets, `states=auto`) chose
+    /// on every seed, in seed order (`None` where the fit failed or chose nothing);
+    /// empty when it chose nothing on any seed.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub per_seed_chosen: Vec<Option<String>>,
 }
 
 fn nan() -> f64 {
@@ -368,6 +393,7 @@ struct SeedResult {
     predict_seconds: f64,
     frames: usize,
     states: usize,
+    chosen: Option<String>,
 }
 
 /// One seed of one method; `removed` holds the seed's training and test
@@ -405,7 +431,7 @@ fn run_seed(
     let roles =
         Roles::new(layout.human.clone(), layout.robot.clone()).map_err(|e| e.to_string())?;
     let clock = Instant::now();
-    let (model, _) = method
+    let (model, fit_summary) = method
         .fit(&data, &roles)
         .map_err(|e| crate::error::CliError::from(e).message)?;
     let fit_seconds = clock.elapsed().as_secs_f64();
@@ -492,6 +518,7 @@ fn run_seed(
         predict_seconds,
         frames,
         states: model.n_states(),
+        chosen: fit_summary.chosen,
     })
 }
 
@@ -588,6 +615,14 @@ pub fn evaluate_action(
                 predict_us_per_frame: 1e6 * ok.iter().fold(0.0, |a, r| a + r.predict_seconds)
                     / frames.max(1) as f64,
                 states: ok.first().map_or(0, |r| r.states),
+                per_seed_chosen: if ok.iter().any(|r| r.chosen.is_some()) {
+                    per_seed
+                        .iter()
+                        .map(|r| r.as_ref().ok().and_then(|x| x.chosen.clone()))
+                        .collect()
+                } else {
+                    Vec::new()
+                },
             }
         })
         .collect())

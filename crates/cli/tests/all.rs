@@ -2,6 +2,7 @@
 //! instead of one per file keeps the test command inside its time budget.
 //! Each file stays a module of its own; add a `mod` line for a new one.
 
+mod auto_cli;
 mod calibration;
 mod cli;
 mod common;

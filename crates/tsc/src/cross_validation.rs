@@ -1,10 +1,46 @@
-//! K-fold cross-validated prediction error, the criterion of the `-cv` presets.
+//! Cross-validated prediction error over folds of whole demonstrations: the
+//! criterion of the `-cv` presets and of `auto` ([`crate::auto`]).
+//!
+//! A candidate is a [`Method`] with a label (`hmm:states=7,reg=0.001`). Its
+//! score on fold `f` is the squared prediction error of the robot's dims
+//! from the human's, summed over the held-out demonstrations' frames, of the
+//! candidate fitted on the other demonstrations; its cross-validated error is
+//! the pooled mean over every held-out frame of the folds it was scored on
+//! (per frame, summed over the robot's dims, in data units squared: the
+//! evaluation's metric on the training demonstrations).
+//!
+//! **Folds.** Demonstration `k` is held out by fold `k mod K`, or, with a fold
+//! seed, the demonstrations are first shuffled by `ChaCha8Rng::seed_from_u64(seed)`
+//! (the `i`-th of the shuffled order goes to fold `i mod K`). Only the data
+//! given are used: a caller passes the training demonstrations, never the test ones.
+//!
+//! **Early abandoning** ([`Halving`], successive halving): rung 0 scores every
+//! candidate on the first `first_folds` folds; the candidates are ranked by
+//! their error so far (ties: the earlier candidate) and the best
+//! `⌈n / eta⌉` (at least `min_kept`) go on; every next rung doubles the folds
+//! scored, until the last rung scores the survivors on all `K` folds and the
+//! lowest error over all folds wins. A candidate that fails on a fold is out
+//! at once, with its reason. Without halving every candidate is scored on
+//! every fold.
+//!
+//! **Parallel and deterministic.** Every rung fits its (candidate, fold) pairs
+//! in parallel (rayon); each fit is seeded by its method's settings alone and
+//! the results are gathered in candidate and fold order, so the choice and
+//! every number of the table but the timings are the same for any number of threads.
 
 use crate::detect::select;
 use crate::error::{Result, TscError};
-use crate::method::Method;
+use crate::method::{CrossValidation, Method};
+use crate::model::Model;
 use crate::roles::Roles;
+use crate::summary::FitSummary;
 use phasekit_emission::{Frames, SequenceSet};
+use rand::seq::SliceRandom;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use std::time::Instant;
 
 /// Mean squared prediction error of the robot's dims (all of them, in data
 /// units) per frame over held-out demonstrations, for every candidate: `Ok`
@@ -15,75 +51,401 @@ use phasekit_emission::{Frames, SequenceSet};
 /// Fold `f` holds out the demonstrations `k` with `k mod folds = f`; `folds`
 /// is clamped to `2..=n`. A frame whose robot values are not all observed is
 /// not scored. Errors (for all candidates) with fewer than 2 demonstrations.
+/// Every candidate is scored on every fold (no halving); see [`cv_table`].
 pub fn cross_validate(
     candidates: &[(String, Method)],
     folds: usize,
     data: &SequenceSet,
     roles: &Roles,
 ) -> Result<Vec<Result<f64>>> {
-    let n = data.len();
-    let folds = folds.clamp(2, n.max(2));
-    if n < 2 {
-        return Err(TscError::InvalidSetting {
-            name: "folds",
-            reason: format!("cross-validation needs at least 2 demonstrations, got {n}"),
-        });
-    }
-    Ok(candidates
-        .iter()
-        .map(|(_, method)| candidate_error(method, folds, data, roles))
+    let plan = FoldPlan::new(data.len(), folds, None)?;
+    let table = score_candidates(candidates, &plan, None, data, roles);
+    Ok(table
+        .into_iter()
+        .map(|r| match r.scored.failure {
+            Some(e) => Err(e),
+            None => Ok(r.scored.mse),
+        })
         .collect())
 }
 
-/// The cross-validated error of one method (see [`cross_validate`]).
-fn candidate_error(
-    method: &Method,
+/// The successive-halving rule of early abandoning (see the module's docs),
+/// validated at construction (and on deserialisation).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(try_from = "HalvingRaw")]
+pub struct Halving {
+    first_folds: usize,
+    eta: usize,
+    min_kept: usize,
+}
+
+#[derive(Deserialize)]
+struct HalvingRaw {
+    first_folds: usize,
+    eta: usize,
+    min_kept: usize,
+}
+
+impl TryFrom<HalvingRaw> for Halving {
+    type Error = TscError;
+    fn try_from(r: HalvingRaw) -> Result<Self> {
+        Halving::new(r.first_folds, r.eta, r.min_kept)
+    }
+}
+
+impl Default for Halving {
+    /// Rung 0 on 2 folds, keep the best third (at least 3), then all folds.
+    fn default() -> Self {
+        Halving {
+            first_folds: 2,
+            eta: 3,
+            min_kept: 3,
+        }
+    }
+}
+
+impl Halving {
+    /// Score everyone on `first_folds ≥ 1` folds, keep the best `⌈n / eta⌉`
+    /// (`eta ≥ 2`), never fewer than `min_kept ≥ 1`, double the folds, repeat.
+    pub fn new(first_folds: usize, eta: usize, min_kept: usize) -> Result<Self> {
+        let bad = |name, reason: String| Err(TscError::InvalidSetting { name, reason });
+        if first_folds == 0 {
+            return bad("first_folds", "rung 0 must score at least one fold".into());
+        }
+        if eta < 2 {
+            return bad(
+                "eta",
+                format!("keeping 1/eta of the candidates needs eta ≥ 2, got {eta}"),
+            );
+        }
+        if min_kept == 0 {
+            return bad("min_kept", "at least one candidate must go on".into());
+        }
+        Ok(Halving {
+            first_folds,
+            eta,
+            min_kept,
+        })
+    }
+    /// Folds of rung 0.
+    pub fn first_folds(&self) -> usize {
+        self.first_folds
+    }
+    /// One in `eta` candidates goes on to the next rung.
+    pub fn eta(&self) -> usize {
+        self.eta
+    }
+    /// Fewest candidates that go on.
+    pub fn min_kept(&self) -> usize {
+        self.min_kept
+    }
+    /// The cumulative folds scored after each rung: `first, 2·first, …, folds`.
+    pub fn rungs(&self, folds: usize) -> Vec<usize> {
+        let mut r = Vec::new();
+        let mut f = self.first_folds.min(folds);
+        while f < folds {
+            r.push(f);
+            f = (f * 2).min(folds);
+        }
+        r.push(folds);
+        r
+    }
+    /// How many of `n` candidates go on.
+    pub fn kept(&self, n: usize) -> usize {
+        n.div_ceil(self.eta).max(self.min_kept).min(n)
+    }
+}
+
+/// One row of the cross-validation table: what became of one candidate.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[non_exhaustive]
+pub struct CvRow {
+    /// The candidate's label (a method specification, `hmm:states=7,reg=0.001`).
+    pub label: String,
+    /// Folds it was scored on (fewer than all when abandoned or failed).
+    pub folds_scored: usize,
+    /// Pooled mean squared error per held-out frame over those folds (data
+    /// units squared, summed over the robot's dims); NaN when none was scored.
+    pub mse: f64,
+    /// Population standard deviation over those folds of the per-fold MSE.
+    pub mse_sd: f64,
+    /// Seconds of fitting and predicting, summed over its folds (CPU time of
+    /// the candidate, not wall-clock of the parallel search).
+    pub fit_seconds: f64,
+    /// Dropped by early abandoning before scoring every fold.
+    pub abandoned: bool,
+    /// Why it could not be scored (the fold and the error), if it failed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub failure: Option<String>,
+}
+
+/// Internal row: the error kept as a [`TscError`] for [`cross_validate`].
+struct Scored {
+    mse: f64,
+    failure: Option<TscError>,
+}
+
+/// Which fold holds out each demonstration.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FoldPlan {
+    fold_of: Vec<usize>,
     folds: usize,
+}
+
+impl FoldPlan {
+    /// `folds` clamped to `2..=n`; demonstration `k` in fold `k mod folds`, or
+    /// the `i`-th of a shuffle by `seed` in fold `i mod folds`. Errors with
+    /// fewer than 2 demonstrations.
+    pub fn new(n: usize, folds: usize, seed: Option<u64>) -> Result<Self> {
+        if n < 2 {
+            return Err(TscError::InvalidSetting {
+                name: "folds",
+                reason: format!("cross-validation needs at least 2 demonstrations, got {n}"),
+            });
+        }
+        let folds = folds.clamp(2, n);
+        let mut order: Vec<usize> = (0..n).collect();
+        if let Some(seed) = seed {
+            order.shuffle(&mut ChaCha8Rng::seed_from_u64(seed));
+        }
+        let mut fold_of = vec![0; n];
+        for (i, &k) in order.iter().enumerate() {
+            fold_of[k] = i % folds;
+        }
+        Ok(FoldPlan { fold_of, folds })
+    }
+    /// Number of folds.
+    pub fn folds(&self) -> usize {
+        self.folds
+    }
+    /// The fold that holds out each demonstration.
+    pub fn fold_of(&self) -> &[usize] {
+        &self.fold_of
+    }
+}
+
+/// Squared error summed over a fold's scorable frames, their number, and the seconds it took.
+type FoldScore = Result<(f64, usize, f64)>;
+
+/// Fits `method` without fold `f`'s demonstrations and scores it on them.
+fn score_fold(
+    method: &Method,
+    plan: &FoldPlan,
+    f: usize,
     data: &SequenceSet,
     roles: &Roles,
-) -> Result<f64> {
-    let n = data.len();
+) -> FoldScore {
+    let clock = Instant::now();
+    let folds = plan.folds;
+    let in_fold = |e: TscError| TscError::InFold {
+        fold: f,
+        folds,
+        source: Box::new(e),
+    };
+    let train: Vec<usize> = (0..data.len()).filter(|&k| plan.fold_of[k] != f).collect();
+    let held: Vec<usize> = (0..data.len()).filter(|&k| plan.fold_of[k] == f).collect();
+    if held.is_empty() || train.is_empty() {
+        return Ok((0.0, 0, 0.0));
+    }
+    let subset = data.subset(&train).map_err(|e| in_fold(e.into()))?;
+    let (model, _) = method.fit(&subset, roles).map_err(in_fold)?;
+    let predictor = model.predictor(roles).map_err(in_fold)?;
     let o = roles.robot().len();
-    let mut se = 0.0;
-    let mut frames = 0usize;
-    for f in 0..folds {
-        let train: Vec<usize> = (0..n).filter(|k| k % folds != f).collect();
-        let held: Vec<usize> = (0..n).filter(|k| k % folds == f).collect();
-        if held.is_empty() || train.is_empty() {
-            continue;
+    let (mut se, mut frames) = (0.0, 0usize);
+    for &k in &held {
+        let seq = data.get(k);
+        let human = select(seq, roles.human());
+        let input = Frames::new(&human, roles.human().len()).map_err(|e| in_fold(e.into()))?;
+        let pred = predictor.predict(input, false).map_err(in_fold)?;
+        for (t, x) in seq.iter().enumerate() {
+            // A frame whose robot values are not all observed is not scored.
+            if roles.robot().iter().any(|&r| x[r].is_nan()) {
+                continue;
+            }
+            se += roles
+                .robot()
+                .iter()
+                .enumerate()
+                .map(|(j, &r)| (pred.mean[t * o + j] - x[r]).powi(2))
+                .sum::<f64>();
+            frames += 1;
         }
-        let in_fold = |e: TscError| TscError::InFold {
-            fold: f,
-            folds,
-            source: Box::new(e),
-        };
-        let subset = data.subset(&train).map_err(|e| in_fold(e.into()))?;
-        let (model, _) = method.fit(&subset, roles).map_err(in_fold)?;
-        let predictor = model.predictor(roles).map_err(in_fold)?;
-        for &k in &held {
-            let seq = data.get(k);
-            let human = select(seq, roles.human());
-            let input = Frames::new(&human, roles.human().len()).map_err(|e| in_fold(e.into()))?;
-            let pred = predictor.predict(input, false).map_err(in_fold)?;
-            for (t, x) in seq.iter().enumerate() {
-                // A frame whose robot values are not all observed is not scored.
-                if roles.robot().iter().any(|&r| x[r].is_nan()) {
-                    continue;
-                }
-                se += roles
-                    .robot()
-                    .iter()
-                    .enumerate()
-                    .map(|(j, &r)| (pred.mean[t * o + j] - x[r]).powi(2))
-                    .sum::<f64>();
-                frames += 1;
+    }
+    if !se.is_finite() {
+        return Err(in_fold(TscError::InvalidSetting {
+            name: "candidates",
+            reason: format!("the squared prediction error is {se}"),
+        }));
+    }
+    Ok((se, frames, clock.elapsed().as_secs_f64()))
+}
+
+/// Scores every candidate by the plan, abandoning by `halving` (none: every
+/// fold); one row per candidate in candidate order, with its error kept.
+fn score_candidates(
+    candidates: &[(String, Method)],
+    plan: &FoldPlan,
+    halving: Option<&Halving>,
+    data: &SequenceSet,
+    roles: &Roles,
+) -> Vec<CvRowScored> {
+    let n = candidates.len();
+    let folds = plan.folds;
+    let mut scores: Vec<Vec<(f64, usize, f64)>> = vec![Vec::new(); n];
+    let mut failure: Vec<Option<TscError>> = vec![None; n];
+    let mut alive: Vec<usize> = (0..n).collect();
+    let rungs = halving.map_or_else(|| vec![folds], |h| h.rungs(folds));
+    let mut done = 0;
+    for (r, &upto) in rungs.iter().enumerate() {
+        // Every (candidate, fold) pair of this rung, fitted in parallel and
+        // gathered in order.
+        let pairs: Vec<(usize, usize)> = alive
+            .iter()
+            .flat_map(|&c| (done..upto).map(move |f| (c, f)))
+            .collect();
+        let results: Vec<FoldScore> = pairs
+            .par_iter()
+            .map(|&(c, f)| score_fold(&candidates[c].1, plan, f, data, roles))
+            .collect();
+        for ((c, _), res) in pairs.into_iter().zip(results) {
+            if failure[c].is_some() {
+                continue;
+            }
+            match res {
+                Ok(s) => scores[c].push(s),
+                Err(e) => failure[c] = Some(e),
+            }
+        }
+        done = upto;
+        alive.retain(|&c| failure[c].is_none());
+        if r + 1 < rungs.len() {
+            if let Some(h) = halving {
+                // Rank by the error so far; ties keep the earlier candidate.
+                let mut ranked: Vec<(usize, f64)> =
+                    alive.iter().map(|&c| (c, pooled(&scores[c]))).collect();
+                ranked.sort_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
+                ranked.truncate(h.kept(ranked.len()));
+                alive = ranked.into_iter().map(|(c, _)| c).collect();
+                alive.sort_unstable();
             }
         }
     }
-    // A candidate with no scorable held-out frame has no error to compare.
+    (0..n)
+        .map(|c| {
+            let s = &scores[c];
+            let mse = pooled(s);
+            let per_fold: Vec<f64> = s
+                .iter()
+                .filter(|x| x.1 > 0)
+                .map(|x| x.0 / x.1 as f64)
+                .collect();
+            let mean = per_fold.iter().sum::<f64>() / per_fold.len().max(1) as f64;
+            let sd = (per_fold.iter().map(|v| (v - mean).powi(2)).sum::<f64>()
+                / per_fold.len().max(1) as f64)
+                .sqrt();
+            let mut fail = failure[c].take();
+            if fail.is_none() && s.len() == folds && s.iter().all(|x| x.1 == 0) {
+                // A candidate with no scorable held-out frame has no error to compare.
+                fail = Some(TscError::NoScorableFrames { folds });
+            }
+            CvRowScored {
+                row: CvRow {
+                    label: candidates[c].0.clone(),
+                    folds_scored: s.len(),
+                    mse,
+                    mse_sd: sd,
+                    fit_seconds: s.iter().map(|x| x.2).sum(),
+                    abandoned: fail.is_none() && s.len() < folds,
+                    failure: fail.as_ref().map(|e| e.to_string()),
+                },
+                scored: Scored { mse, failure: fail },
+            }
+        })
+        .collect()
+}
+
+/// A row and its error kept as a [`TscError`].
+struct CvRowScored {
+    row: CvRow,
+    scored: Scored,
+}
+
+/// Pooled squared error per frame of the folds scored (NaN when no frame was).
+fn pooled(s: &[(f64, usize, f64)]) -> f64 {
+    let (se, frames) = s.iter().fold((0.0, 0), |(a, n), x| (a + x.0, n + x.1));
     if frames == 0 {
-        Err(TscError::NoScorableFrames { folds })
+        f64::NAN
     } else {
-        Ok(se / frames as f64)
+        se / frames as f64
     }
+}
+
+/// The cross-validation table of `cv` on `data` (the training demonstrations
+/// only): one row per candidate, in candidate order.
+pub fn cv_table(cv: &CrossValidation, data: &SequenceSet, roles: &Roles) -> Result<Vec<CvRow>> {
+    roles.check(data.dim())?;
+    let plan = FoldPlan::new(data.len(), cv.folds(), cv.fold_seed())?;
+    Ok(
+        score_candidates(cv.candidates(), &plan, cv.halving(), data, roles)
+            .into_iter()
+            .map(|r| r.row)
+            .collect(),
+    )
+}
+
+/// The winner of a table: the lowest error among the candidates scored on
+/// every fold (ties: the earlier one).
+pub fn winner(table: &[CvRow]) -> Option<usize> {
+    let folds = table.iter().map(|r| r.folds_scored).max()?;
+    table
+        .iter()
+        .enumerate()
+        .filter(|(_, r)| r.failure.is_none() && r.folds_scored == folds && r.mse.is_finite())
+        .min_by(|a, b| a.1.mse.total_cmp(&b.1.mse).then(a.0.cmp(&b.0)))
+        .map(|(i, _)| i)
+}
+
+/// Fits a [`Method::CrossValidated`]: the table on `data`, then the winner
+/// refitted on all of `data`; the summary is the winner's, with the choice,
+/// the table and the whole time.
+pub fn fit_cross_validated(
+    cv: &CrossValidation,
+    data: &SequenceSet,
+    roles: &Roles,
+) -> Result<(Model, FitSummary)> {
+    let clock = Instant::now();
+    let candidates = cv.candidates();
+    let plan = FoldPlan::new(data.len(), cv.folds(), cv.fold_seed())?;
+    let scored = score_candidates(candidates, &plan, cv.halving(), data, roles);
+    let table: Vec<CvRow> = scored.iter().map(|r| r.row.clone()).collect();
+    let Some(best) = winner(&table) else {
+        return Err(TscError::NoCandidate {
+            failures: candidates
+                .iter()
+                .zip(scored)
+                .map(|((label, _), s)| {
+                    let e = match s.scored.failure {
+                        Some(e) => e,
+                        None => TscError::InvalidSetting {
+                            name: "candidates",
+                            reason: format!("cross-validated error {} is not finite", s.scored.mse),
+                        },
+                    };
+                    (label.clone(), e)
+                })
+                .collect(),
+        });
+    };
+    let (model, mut summary) = candidates[best].1.fit(data, roles)?;
+    summary.fit_seconds = clock.elapsed().as_secs_f64();
+    summary.chosen = Some(candidates[best].0.clone());
+    for row in &table {
+        match &row.failure {
+            Some(e) => summary.cv_failures.push((row.label.clone(), e.clone())),
+            None if !row.abandoned => summary.cv_errors.push((row.label.clone(), row.mse)),
+            None => {}
+        }
+    }
+    summary.cv_table = table;
+    Ok((model, summary))
 }

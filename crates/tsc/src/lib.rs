@@ -71,6 +71,7 @@
 
 #![warn(missing_docs)]
 
+pub mod auto;
 pub mod cross_validation;
 pub mod detect;
 pub mod emission_choice;
@@ -89,7 +90,8 @@ pub mod summary;
 pub mod synthetic;
 pub mod tsc_hmm;
 
-pub use cross_validation::cross_validate;
+pub use auto::{AutoSettings, AutoSettingsBuilder, Grid};
+pub use cross_validation::{cross_validate, CvRow, FoldPlan, Halving};
 pub use emission_choice::{AnyEmission, AnySplit, AnyStats, EmissionKind, StateMoments};
 pub use error::{NoTransitionCause, ParameterNamer, Result, TscError};
 pub use hmm_settings::{AutoStates, AutoStatesReport, HmmSettings, HmmSettingsBuilder};

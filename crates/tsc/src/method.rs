@@ -1,6 +1,6 @@
 //! A method with all its settings, and fitting it to demonstrations.
 
-use crate::cross_validation::cross_validate;
+use crate::cross_validation::{fit_cross_validated, Halving};
 use crate::emission_choice::{AnyEmission, EmissionKind};
 use crate::error::{Result, TscError};
 use crate::hmm_settings::HmmSettings;
@@ -198,6 +198,10 @@ impl GmmSettings {
 pub struct CrossValidation {
     candidates: Vec<(String, Method)>,
     folds: usize,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    halving: Option<Halving>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    fold_seed: Option<u64>,
 }
 
 /// The serialised form of [`CrossValidation`], before validation.
@@ -205,12 +209,19 @@ pub struct CrossValidation {
 struct CrossValidationRaw {
     candidates: Vec<(String, Method)>,
     folds: usize,
+    #[serde(default)]
+    halving: Option<Halving>,
+    #[serde(default)]
+    fold_seed: Option<u64>,
 }
 
 impl TryFrom<CrossValidationRaw> for CrossValidation {
     type Error = TscError;
     fn try_from(r: CrossValidationRaw) -> Result<Self> {
-        CrossValidation::new(r.candidates, r.folds)
+        let mut cv = CrossValidation::new(r.candidates, r.folds)?;
+        cv.halving = r.halving;
+        cv.fold_seed = r.fold_seed;
+        Ok(cv)
     }
 }
 
@@ -231,7 +242,32 @@ impl CrossValidation {
                 reason: format!("at least 2 folds are needed, got {folds}"),
             });
         }
-        Ok(CrossValidation { candidates, folds })
+        Ok(CrossValidation {
+            candidates,
+            folds,
+            halving: None,
+            fold_seed: None,
+        })
+    }
+    /// Early abandoning of hopeless candidates by successive halving (see
+    /// [`crate::cross_validation`]); without it every candidate is scored on every fold.
+    pub fn with_halving(mut self, halving: Halving) -> Self {
+        self.halving = Some(halving);
+        self
+    }
+    /// Shuffle the demonstrations into folds with this seed (without it,
+    /// demonstration `k` is held out by fold `k mod folds`).
+    pub fn with_fold_seed(mut self, seed: u64) -> Self {
+        self.fold_seed = Some(seed);
+        self
+    }
+    /// The rule of early abandoning, if any.
+    pub fn halving(&self) -> Option<&Halving> {
+        self.halving.as_ref()
+    }
+    /// The seed of the fold assignment, if shuffled.
+    pub fn fold_seed(&self) -> Option<u64> {
+        self.fold_seed
     }
     /// The labels and methods to choose from.
     pub fn candidates(&self) -> &[(String, Method)] {
@@ -347,46 +383,7 @@ impl Method {
                 )?;
                 Ok((Model::Gmm(f.model), FitSummary::from_gmm(&f.report)))
             }
-            Method::CrossValidated(cv) => {
-                let clock = std::time::Instant::now();
-                let candidates = cv.candidates();
-                let scores = cross_validate(candidates, cv.folds(), data, roles)?;
-                let best = scores
-                    .iter()
-                    .enumerate()
-                    .filter_map(|(i, e)| e.as_ref().ok().map(|e| (i, *e)))
-                    .filter(|(_, e)| e.is_finite())
-                    .min_by(|a, b| a.1.total_cmp(&b.1))
-                    .map(|(i, _)| i);
-                let Some(best) = best else {
-                    return Err(TscError::NoCandidate {
-                        failures: candidates
-                            .iter()
-                            .zip(&scores)
-                            .map(|((label, _), s)| {
-                                let e = match s {
-                                    Err(e) => e.clone(),
-                                    Ok(v) => TscError::InvalidSetting {
-                                        name: "candidates",
-                                        reason: format!("cross-validated error {v} is not finite"),
-                                    },
-                                };
-                                (label.clone(), e)
-                            })
-                            .collect(),
-                    });
-                };
-                let (model, mut summary) = candidates[best].1.fit(data, roles)?;
-                summary.fit_seconds = clock.elapsed().as_secs_f64();
-                summary.chosen = Some(candidates[best].0.clone());
-                for ((label, _), s) in candidates.iter().zip(scores) {
-                    match s {
-                        Ok(e) => summary.cv_errors.push((label.clone(), e)),
-                        Err(e) => summary.cv_failures.push((label.clone(), e.to_string())),
-                    }
-                }
-                Ok((model, summary))
-            }
+            Method::CrossValidated(cv) => fit_cross_validated(cv, data, roles),
             Method::GmmTsc { gmm, tsc } => {
                 let (ktsc, report) = tsc.fit(data)?;
                 let components = match tsc.components() {

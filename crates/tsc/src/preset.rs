@@ -58,11 +58,14 @@ pub enum Preset {
     GmmTsc,
     /// `gmm`: static GMR from a GMM.
     Gmm,
+    /// `auto`: the family, states, regularisation and emission chosen by
+    /// cross-validation on the training demonstrations ([`crate::auto`]).
+    Auto,
 }
 
 impl Preset {
     /// Every preset, in the order the help lists them.
-    pub const ALL: [Preset; 11] = [
+    pub const ALL: [Preset; 12] = [
         Preset::Hmm,
         Preset::HmmCv,
         Preset::TscHmmCv,
@@ -74,6 +77,7 @@ impl Preset {
         Preset::GmmTsc,
         Preset::Gmm,
         Preset::Hsmm,
+        Preset::Auto,
     ];
 
     /// The name [`Preset::from_str`] reads.
@@ -90,6 +94,7 @@ impl Preset {
             Preset::TscHmmWorst => "tsc-hmm-worst",
             Preset::GmmTsc => "gmm-tsc",
             Preset::Gmm => "gmm",
+            Preset::Auto => "auto",
         }
     }
 
@@ -104,7 +109,7 @@ impl Preset {
     pub fn offers_auto_states(self) -> bool {
         !matches!(
             self,
-            Preset::HmmCv | Preset::TscHmmCv | Preset::Gmm | Preset::Hsmm
+            Preset::HmmCv | Preset::TscHmmCv | Preset::Gmm | Preset::Hsmm | Preset::Auto
         )
     }
 }
@@ -529,6 +534,7 @@ impl Method {
                 Detector::WorstPrediction { fraction: 0.15 },
             )?,
             Preset::Gmm => Method::Gmm(gmm()?),
+            Preset::Auto => crate::auto::AutoSettings::default().method(o)?,
             Preset::HmmCv | Preset::TscHmmCv => {
                 let mut candidates: Vec<(String, Method)> = (o.states..=o.states + o.tsc_states)
                     .map(|s| {

@@ -1,5 +1,6 @@
 //! What a fit did, in a form common to every method.
 
+use crate::cross_validation::CvRow;
 use crate::hmm_settings::AutoStatesReport;
 use phasekit_emission::{MStepEvent, MStepReport};
 use phasekit_gmm::GmmFitReport;
@@ -38,6 +39,10 @@ pub struct FitSummary {
     /// Every candidate of a cross-validation that could not be scored, and why.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub cv_failures: Vec<(String, String)>,
+    /// The whole cross-validation table of a choice by cross-validation
+    /// (`auto`, the `-cv` presets): every candidate, abandoned or failed ones included.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub cv_table: Vec<CvRow>,
     /// `(states, BIC)` of every candidate of an automatic choice of states.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub bic: Vec<(usize, f64)>,
@@ -203,6 +208,7 @@ impl FitSummary {
             chosen: None,
             cv_errors: Vec::new(),
             cv_failures: Vec::new(),
+            cv_table: Vec::new(),
             bic: Vec::new(),
             regularisation: m_steps.iter().map(|m| m.added_diagonal).fold(0.0, f64::max),
             empty_states: empty,

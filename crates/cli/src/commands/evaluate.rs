@@ -208,7 +208,39 @@ pub fn markdown(r: &Report) -> String {
 /// The Markdown document of a report: the table, then the metric's definition
 /// (what `evaluate` prints and writes to PREFIX.md).
 pub fn markdown_document(r: &Report) -> String {
-    format!("{}\n{}\n", markdown(r), r.metric)
+    format!("{}\n{}{}\n", markdown(r), choices(r), r.metric)
+}
+
+/// What the choosing methods chose, per action: every choice and on how many
+/// seeds, most frequent first (the JSON has it per seed: `per_seed_chosen`).
+fn choices(r: &Report) -> String {
+    let mut s = String::new();
+    for x in r
+        .results
+        .iter()
+        .filter(|x| !x.row.per_seed_chosen.is_empty())
+    {
+        let mut counts: Vec<(&str, usize)> = Vec::new();
+        for c in x.row.per_seed_chosen.iter().flatten() {
+            match counts.iter_mut().find(|(l, _)| *l == c.as_str()) {
+                Some((_, n)) => *n += 1,
+                None => counts.push((c.as_str(), 1)),
+            }
+        }
+        counts.sort_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(b.0)));
+        let list: Vec<String> = counts.iter().map(|(l, n)| format!("{l} ×{n}")).collect();
+        s.push_str(&format!(
+            "Chosen by {} on {} ({} seeds): {}.\n",
+            x.row.method,
+            x.row.action,
+            x.row.seeds,
+            list.join(", ")
+        ));
+    }
+    if !s.is_empty() {
+        s.push('\n');
+    }
+    s
 }
 
 /// The CSV of a report: one line per row, with both paired comparisons (against the
@@ -305,6 +337,7 @@ fn baseline_row(action: &str, mse: f64) -> Row {
         nlpd_std: f64::NAN,
         predict_us_per_frame: 0.0,
         states: 0,
+        per_seed_chosen: Vec::new(),
     }
 }
 

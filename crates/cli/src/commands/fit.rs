@@ -264,7 +264,7 @@ fn summary_line(r: &FitReport) -> String {
     format!(
         "phasekit: fitted {}{} ({} states, {} emissions) to {} demonstrations ({} frames, {} features) in {:.2} s: {} EM iterations, {}{}",
         r.method,
-        r.fit.chosen.as_ref().map(|c| format!(" (chose {c})")).unwrap_or_default(),
+        r.fit.chosen.as_ref().map(|c| format!(" (chose {c}{})", cv_note(&r.fit))).unwrap_or_default(),
         r.states,
         r.emission,
         r.demonstrations.len(),
@@ -387,8 +387,60 @@ fn markdown(r: &FitReport) -> String {
     ] {
         s.push_str(&format!("| {k} | {v} |\n"));
     }
+    s.push_str(&cv_table_markdown(&r.fit, r.standardised));
     for n in &r.notes {
         s.push_str(&format!("\nNote: {n}\n"));
     }
     s
+}
+
+/// The cross-validation table of a choice by cross-validation (`auto`, the
+/// `-cv` presets), as Markdown; empty for other methods.
+pub fn cv_table_markdown(fit: &FitSummary, standardised: bool) -> String {
+    if fit.cv_table.is_empty() {
+        return String::new();
+    }
+    let unit = if standardised {
+        "standardised units²"
+    } else {
+        "data units²"
+    };
+    let mut s = format!(
+        "\nCross-validation on the training demonstrations (MSE of the robot's features per held-out frame, {unit}; \
+         ± population sd over folds; fit time summed over the candidate's folds):\n\n\
+         | candidate | folds scored | CV MSE | fit (s) | outcome |\n|---|---:|---:|---:|---|\n"
+    );
+    for row in &fit.cv_table {
+        let outcome = match (&row.failure, row.abandoned) {
+            (Some(e), _) => format!("failed: {e}"),
+            (None, true) => "abandoned (successive halving)".to_string(),
+            (None, false) if fit.chosen.as_deref() == Some(row.label.as_str()) => {
+                "**chosen**".to_string()
+            }
+            (None, false) => "scored on every fold".to_string(),
+        };
+        let mse = if row.mse.is_finite() {
+            format!("{:.4e} ± {:.2e}", row.mse, row.mse_sd)
+        } else {
+            "–".to_string()
+        };
+        s.push_str(&format!(
+            "| {} | {} | {mse} | {:.3} | {outcome} |\n",
+            row.label, row.folds_scored, row.fit_seconds
+        ));
+    }
+    s
+}
+
+/// `, choosing among N candidates by cross-validation (A abandoned, F failed)`, or nothing.
+fn cv_note(fit: &FitSummary) -> String {
+    if fit.cv_table.is_empty() {
+        return String::new();
+    }
+    let abandoned = fit.cv_table.iter().filter(|r| r.abandoned).count();
+    let failed = fit.cv_table.iter().filter(|r| r.failure.is_some()).count();
+    format!(
+        " by cross-validation among {} candidates ({abandoned} abandoned early, {failed} failed; --format md shows the table)",
+        fit.cv_table.len()
+    )
 }

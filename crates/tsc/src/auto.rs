@@ -1,0 +1,336 @@
+//! The `auto` preset: a predictor that tunes itself.
+//!
+//! `auto` chooses among model families (the HMM, the TSC-HMM union, static
+//! GMR from a GMM), numbers of states, regularisations and emissions by
+//! cross-validated prediction error of the robot from the human on the
+//! training demonstrations only (folds of whole demonstrations, shuffled by
+//! the options' seed), with early abandoning of hopeless candidates by
+//! successive halving ([`Halving::default`]: every candidate on 2 folds, the
+//! best third, at least 3, on to all folds), then refits the winner on all
+//! training demonstrations. See [`crate::cross_validation`] for the criterion,
+//! the folds and the rule; the fit's summary carries the whole table
+//! ([`crate::FitSummary::cv_table`]) and the choice ([`crate::FitSummary::chosen`]).
+//!
+//! Every candidate is a plain method specification, `NAME:key=value,...`, the
+//! same the command line reads (`hmm:states=7,reg=1e-3`), made on top of the
+//! options `auto` was given (seed, iterations, tolerance, runs and emission pass
+//! through; the grid's keys override): a new candidate is one line of
+//! [`DEFAULT_GRID`] or [`SMALL_GRID`], and its family is its preset's name.
+//!
+//! Keys (`auto:key=value`, [`AutoSettings::set`]): `grid=small|default`,
+//! `folds=K` (`K ≥ 2`, clamped to the number of demonstrations),
+//! `families=hmm+tsc-hmm` (a `+`-separated subset of the grid's families),
+//! `halving=on|off`.
+//!
+//! Not done: warm starts across folds (an HMM fitted on folds `A ∪ B` started
+//! from the one fitted on `A` is a different fit, so the choice would depend
+//! on the rung order; no warm start here is exact, so none is used).
+
+use crate::cross_validation::Halving;
+use crate::emission_choice::EmissionKind;
+use crate::error::{Result, TscError};
+use crate::method::{CrossValidation, Method};
+use crate::preset::{Preset, PresetOptions, PresetOptionsBuilder};
+use serde::{Deserialize, Serialize};
+use std::fmt;
+use std::str::FromStr;
+
+/// The default grid: 19 candidates over the HMM (states × regularisation),
+/// the TSC-HMM union, Student-t emissions and static GMR.
+pub const DEFAULT_GRID: &[&str] = &[
+    "hmm:states=5,reg=1e-2",
+    "hmm:states=5,reg=1e-3",
+    "hmm:states=7,reg=1e-2",
+    "hmm:states=7,reg=3e-3",
+    "hmm:states=7,reg=1e-3",
+    "hmm:states=10,reg=1e-2",
+    "hmm:states=10,reg=3e-3",
+    "hmm:states=10,reg=1e-3",
+    "hmm:states=13,reg=1e-3",
+    "hmm:states=7,reg=1e-3,emission=student-t",
+    "tsc-hmm:states=4,reg=1e-2",
+    "tsc-hmm:states=4,reg=1e-3",
+    "tsc-hmm:states=7,reg=1e-2",
+    "tsc-hmm:states=7,reg=1e-3",
+    "tsc-hmm:states=4,reg=1e-3,emission=student-t",
+    "gmm:states=5,reg=1e-2",
+    "gmm:states=10,reg=1e-2",
+    "gmm:states=10,reg=1e-3",
+    "gmm:states=15,reg=1e-3",
+];
+
+/// The small grid: 9 candidates, every family with its most useful settings.
+pub const SMALL_GRID: &[&str] = &[
+    "hmm:states=5,reg=1e-2",
+    "hmm:states=7,reg=1e-2",
+    "hmm:states=7,reg=1e-3",
+    "hmm:states=10,reg=1e-2",
+    "hmm:states=10,reg=1e-3",
+    "tsc-hmm:states=4,reg=1e-2",
+    "tsc-hmm:states=4,reg=1e-3",
+    "gmm:states=8,reg=1e-2",
+    "gmm:states=8,reg=1e-3",
+];
+
+/// Which list of candidates `auto` searches.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Grid {
+    /// [`SMALL_GRID`].
+    Small,
+    /// [`DEFAULT_GRID`].
+    #[default]
+    Default,
+}
+
+impl Grid {
+    /// The candidates' specifications.
+    pub fn specs(self) -> &'static [&'static str] {
+        match self {
+            Grid::Small => SMALL_GRID,
+            Grid::Default => DEFAULT_GRID,
+        }
+    }
+}
+
+impl fmt::Display for Grid {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Grid::Small => "small",
+            Grid::Default => "default",
+        })
+    }
+}
+
+impl FromStr for Grid {
+    type Err = TscError;
+    fn from_str(s: &str) -> Result<Grid> {
+        match s {
+            "small" => Ok(Grid::Small),
+            "default" => Ok(Grid::Default),
+            _ => Err(TscError::InvalidSetting {
+                name: "grid",
+                reason: format!("unknown grid `{s}`; known: small, default"),
+            }),
+        }
+    }
+}
+
+/// The settings of `auto`, validated once by [`AutoSettingsBuilder::build`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct AutoSettings {
+    grid: Grid,
+    folds: usize,
+    families: Option<Vec<String>>,
+    halving: bool,
+}
+
+impl Default for AutoSettings {
+    /// The default grid, 5 folds, every family, halving on.
+    fn default() -> Self {
+        AutoSettings {
+            grid: Grid::Default,
+            folds: 5,
+            families: None,
+            halving: true,
+        }
+    }
+}
+
+/// Builder of [`AutoSettings`]; [`AutoSettingsBuilder::build`] validates once.
+#[derive(Debug, Clone)]
+pub struct AutoSettingsBuilder(AutoSettings);
+
+impl AutoSettingsBuilder {
+    /// Which grid.
+    pub fn grid(mut self, grid: Grid) -> Self {
+        self.0.grid = grid;
+        self
+    }
+    /// `K ≥ 2` folds (clamped to the number of demonstrations when fitting).
+    pub fn folds(mut self, k: usize) -> Self {
+        self.0.folds = k;
+        self
+    }
+    /// Only the candidates of these families (preset names: `hmm`, `tsc-hmm`, `gmm`).
+    pub fn families<S: Into<String>>(mut self, families: impl IntoIterator<Item = S>) -> Self {
+        self.0.families = Some(families.into_iter().map(Into::into).collect());
+        self
+    }
+    /// Early abandoning by successive halving (on by default).
+    pub fn halving(mut self, on: bool) -> Self {
+        self.0.halving = on;
+        self
+    }
+    /// Validates the settings: at least 2 folds, every family one of the grid's.
+    pub fn build(self) -> Result<AutoSettings> {
+        let s = self.0;
+        if s.folds < 2 {
+            return Err(TscError::InvalidSetting {
+                name: "folds",
+                reason: format!("cross-validation needs at least 2 folds, got {}", s.folds),
+            });
+        }
+        if let Some(fams) = &s.families {
+            let known = families_of(s.grid.specs());
+            if fams.is_empty() {
+                return Err(TscError::InvalidSetting {
+                    name: "families",
+                    reason: format!("no family given; known: {}", known.join("+")),
+                });
+            }
+            for f in fams {
+                if !known.contains(&f.as_str()) {
+                    return Err(TscError::InvalidSetting {
+                        name: "families",
+                        reason: format!(
+                            "`{f}` is not a family of the {} grid; known: {}",
+                            s.grid,
+                            known.join(", ")
+                        ),
+                    });
+                }
+            }
+        }
+        Ok(s)
+    }
+}
+
+/// The families (preset names) of a grid, in order of first appearance.
+fn families_of(specs: &[&'static str]) -> Vec<&'static str> {
+    let mut out: Vec<&'static str> = Vec::new();
+    for s in specs {
+        let name = s.split_once(':').map_or(*s, |(n, _)| n);
+        if !out.contains(&name) {
+            out.push(name);
+        }
+    }
+    out
+}
+
+impl AutoSettings {
+    /// A builder starting from [`AutoSettings::default`].
+    pub fn builder() -> AutoSettingsBuilder {
+        AutoSettingsBuilder(AutoSettings::default())
+    }
+    /// A builder starting from these settings.
+    pub fn to_builder(&self) -> AutoSettingsBuilder {
+        AutoSettingsBuilder(self.clone())
+    }
+    /// Which grid.
+    pub fn grid(&self) -> Grid {
+        self.grid
+    }
+    /// Folds.
+    pub fn folds(&self) -> usize {
+        self.folds
+    }
+    /// The families searched (`None`: all of the grid's).
+    pub fn families(&self) -> Option<&[String]> {
+        self.families.as_deref()
+    }
+    /// Whether hopeless candidates are abandoned early.
+    pub fn halving(&self) -> bool {
+        self.halving
+    }
+
+    /// Whether `key` is one of `auto`'s own keys (`grid`, `folds`, `families`, `halving`).
+    pub fn is_key(key: &str) -> bool {
+        matches!(key, "grid" | "folds" | "families" | "halving")
+    }
+
+    /// Sets one `auto:key=value` setting on a builder; errors name the key.
+    pub fn set(b: AutoSettingsBuilder, key: &str, value: &str) -> Result<AutoSettingsBuilder> {
+        let bad = |name, reason: String| TscError::InvalidSetting { name, reason };
+        Ok(match key {
+            "grid" => b.grid(value.parse()?),
+            "folds" => {
+                b.folds(value.parse().map_err(|e| {
+                    bad("folds", format!("`{value}` is not a number of folds: {e}"))
+                })?)
+            }
+            "families" => b.families(value.split('+').map(str::trim)),
+            "halving" => match value {
+                "on" => b.halving(true),
+                "off" => b.halving(false),
+                _ => return Err(bad("halving", format!("expected on or off, got `{value}`"))),
+            },
+            _ => {
+                return Err(bad(
+                    "method",
+                    format!("unknown key `{key}` of auto; known: grid, folds, families, halving"),
+                ))
+            }
+        })
+    }
+
+    /// The candidates, labelled by their specification, made on top of `base`.
+    pub fn candidates(&self, base: &PresetOptions) -> Result<Vec<(String, Method)>> {
+        let specs: Vec<&str> = self
+            .grid
+            .specs()
+            .iter()
+            .copied()
+            .filter(|s| {
+                let name = s.split_once(':').map_or(*s, |(n, _)| n);
+                self.families
+                    .as_ref()
+                    .is_none_or(|f| f.iter().any(|x| x == name))
+            })
+            .collect();
+        specs
+            .into_iter()
+            .map(|s| Ok((s.to_string(), method_of_spec(s, base)?)))
+            .collect()
+    }
+
+    /// The method: a cross-validated choice among [`AutoSettings::candidates`],
+    /// folds shuffled by `base`'s seed, with [`Halving::default`] when on.
+    pub fn method(&self, base: &PresetOptions) -> Result<Method> {
+        let cv =
+            CrossValidation::new(self.candidates(base)?, self.folds)?.with_fold_seed(base.seed());
+        Ok(Method::CrossValidated(if self.halving {
+            cv.with_halving(Halving::default())
+        } else {
+            cv
+        }))
+    }
+}
+
+/// The method of a specification `NAME[:key=value,...]` on top of `base`.
+/// Keys: `states`, `tsc-states`, `window`, `reg`, `emission`, `max-iter`, `restarts`.
+pub fn method_of_spec(spec: &str, base: &PresetOptions) -> Result<Method> {
+    let (name, rest) = spec.split_once(':').unwrap_or((spec, ""));
+    let preset: Preset = name.parse()?;
+    let mut o = base.to_builder();
+    for kv in rest.split(',').filter(|s| !s.is_empty()) {
+        let (k, v) = kv.split_once('=').ok_or_else(|| TscError::InvalidSetting {
+            name: "method",
+            reason: format!("`{kv}` in `{spec}` is not key=value"),
+        })?;
+        o = apply_setting(o, k, v).map_err(|reason| TscError::InvalidSetting {
+            name: "method",
+            reason: format!("`{kv}` in `{spec}`: {reason}"),
+        })?;
+    }
+    Method::preset(preset, &o.build()?)
+}
+
+/// One `key=value` of a specification.
+fn apply_setting(
+    o: PresetOptionsBuilder,
+    k: &str,
+    v: &str,
+) -> std::result::Result<PresetOptionsBuilder, String> {
+    let num = |v: &str| v.parse::<usize>().map_err(|e| e.to_string());
+    Ok(match k {
+        "states" => o.states(num(v)?),
+        "tsc-states" => o.tsc_states(num(v)?),
+        "window" => o.window(num(v)?),
+        "max-iter" => o.max_iter(num(v)?),
+        "restarts" => o.restarts(num(v)?),
+        "reg" => o.reg(v.parse::<f64>().map_err(|e| e.to_string())?),
+        "emission" => o.emission(v.parse::<EmissionKind>().map_err(|e| e.to_string())?),
+        other => return Err(format!("unknown key `{other}`")),
+    })
+}
