@@ -17,7 +17,9 @@ struct Header {
 pub struct FileKind {
     /// The `"format"` string it writes and reads.
     pub format: &'static str,
-    /// The one `"version"` this build reads.
+    /// The oldest `"version"` this build reads.
+    pub oldest: u64,
+    /// The newest `"version"` this build reads (the one it writes).
     pub version: u64,
     /// Its name in messages (`model file`, `library file`).
     pub noun: &'static str,
@@ -74,13 +76,19 @@ pub fn check_header(
         }
     }
     match header.version.as_ref().and_then(|v| v.as_u64()) {
-        Some(v) if v == kind.version => Ok(()),
-        Some(v) => Err(CliError::new(format!(
-            "{p}: {noun} version {v} is not supported; this phasekit ({}) reads version {} — {} with this version",
-            env!("CARGO_PKG_VERSION"),
-            kind.version,
-            kind.remedy
-        ))),
+        Some(v) if (kind.oldest..=kind.version).contains(&v) => Ok(()),
+        Some(v) => {
+            let reads = if kind.oldest == kind.version {
+                format!("version {}", kind.version)
+            } else {
+                format!("versions {} to {}", kind.oldest, kind.version)
+            };
+            Err(CliError::new(format!(
+                "{p}: {noun} version {v} is not supported; this phasekit ({}) reads {reads} — {} with this version",
+                env!("CARGO_PKG_VERSION"),
+                kind.remedy
+            )))
+        }
         None => Err(CliError::new(format!(
             "{p}: {noun} has no valid \"version\" number"
         ))),

@@ -142,6 +142,7 @@ impl LibraryFile {
             path,
             &FileKind {
                 format: FORMAT,
+                oldest: VERSION,
                 version: VERSION,
                 noun: "library file",
                 remedy: "refit the library",
@@ -195,16 +196,7 @@ impl LibraryFile {
         }
         // The method's settings were validated when read (the presets' settings deserialise checked).
         if let Some(s) = &self.standardisation {
-            if s.mean.len() != d || s.std.len() != d {
-                return Err(CliError::new("standardisation has the wrong length"));
-            }
-            if s.mean.iter().chain(&s.std).any(|v| !v.is_finite())
-                || s.std.iter().any(|v| *v <= 0.0)
-            {
-                return Err(CliError::new(
-                    "standardisation holds a non-finite or non-positive value",
-                ));
-            }
+            s.check(d)?;
         }
         Ok(())
     }

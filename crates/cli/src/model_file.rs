@@ -17,6 +17,7 @@
 
 use crate::data::{FeatureSpec, Layout};
 use crate::error::{CliError, Result};
+use crate::file_header::{check_header, FileKind};
 use phasekit_emission::Frames;
 use phasekit_tsc::{FitSummary, Method, Model, Roles, StateMoments};
 use serde::{Deserialize, Serialize};
@@ -52,6 +53,22 @@ pub struct Standardisation {
 }
 
 impl Standardisation {
+    /// Checks a standardisation read from a file against `d` features: one
+    /// finite mean and one finite positive std per feature.
+    pub fn check(&self, d: usize) -> Result<()> {
+        if self.mean.len() != d || self.std.len() != d {
+            return Err(CliError::new("standardisation has the wrong length"));
+        }
+        if self.mean.iter().chain(&self.std).any(|v| !v.is_finite())
+            || self.std.iter().any(|v| *v <= 0.0)
+        {
+            return Err(CliError::new(
+                "standardisation holds a non-finite or non-positive value",
+            ));
+        }
+        Ok(())
+    }
+
     /// Per-feature mean and std of all frames of `seqs` (`T × d` each), over
     /// the observed values (NaN = missing is left out; a feature never
     /// observed gets mean 0 and std 1).
@@ -209,12 +226,6 @@ pub struct ModelFile {
     pub novelty: Option<Novelty>,
 }
 
-#[derive(Deserialize)]
-struct Header {
-    format: Option<serde_json::Value>,
-    version: Option<serde_json::Value>,
-}
-
 impl ModelFile {
     /// Wraps a fitted model.
     pub fn new(
@@ -281,46 +292,22 @@ impl ModelFile {
 
     /// Parses a model file's text; `path` names it in errors.
     pub fn from_json(text: &str, path: &Path) -> Result<Self> {
+        check_header(
+            text,
+            path,
+            &FileKind {
+                format: FORMAT,
+                oldest: 1,
+                version: VERSION,
+                noun: "model file",
+                remedy: "refit the model",
+            },
+            &[(
+                crate::library_file::FORMAT,
+                &crate::library_file::not_a_model,
+            )],
+        )?;
         let p = path.display();
-        let header: Header = serde_json::from_str(text).map_err(|e| {
-            // A file cut in the middle of a number or a word fails on its last
-            // character rather than at "end of input": call that truncated too.
-            let end_line = 1 + text.matches('\n').count();
-            let end_col = text.len() - text.rfind('\n').map_or(0, |i| i + 1);
-            let at_end = e.line() == end_line && e.column() + 1 >= end_col;
-            let what = if e.is_eof() || (e.is_syntax() && at_end) {
-                "it is truncated or empty"
-            } else {
-                "it is not valid JSON"
-            };
-            CliError::new(format!("{p}: not a phasekit model file ({what}: {e})"))
-        })?;
-        match header.format.as_ref().and_then(|f| f.as_str()) {
-            Some(FORMAT) => {}
-            Some(crate::library_file::FORMAT) => {
-                return Err(crate::library_file::not_a_model(path))
-            }
-            Some(other) => {
-                return Err(CliError::new(format!(
-                    "{p}: not a phasekit model file (its format is `{other}`, not `{FORMAT}`)"
-                )))
-            }
-            None => {
-                return Err(CliError::new(format!(
-                    "{p}: not a phasekit model file (no \"format\": \"{FORMAT}\" field)"
-                )))
-            }
-        }
-        match header.version.as_ref().and_then(|v| v.as_u64()) {
-            Some(1..=VERSION) => {}
-            Some(v) => {
-                return Err(CliError::new(format!(
-                    "{p}: model file version {v} is not supported; this phasekit ({}) reads versions 1 to {VERSION} — refit the model with this version",
-                    env!("CARGO_PKG_VERSION")
-                )))
-            }
-            None => return Err(CliError::new(format!("{p}: model file has no valid \"version\" number"))),
-        }
         let file: ModelFile = serde_json::from_str(text)
             .map_err(|e| CliError::new(format!("{p}: corrupted model file: {e}")))?;
         file.validate()
@@ -371,38 +358,9 @@ impl ModelFile {
                 ));
             }
         }
-        let hv = matches!(
-            l.velocity,
-            crate::data::Velocity::Both | crate::data::Velocity::Human
-        );
-        let rv = matches!(
-            l.velocity,
-            crate::data::Velocity::Both | crate::data::Velocity::Robot
-        );
-        let nh = l.human_columns.len() * if hv { 2 } else { 1 };
-        let nr = l.robot_columns.len() * if rv { 2 } else { 1 };
-        if l.human != (0..nh).collect::<Vec<_>>()
-            || l.robot != (nh..nh + nr).collect::<Vec<_>>()
-            || d != nh + nr
-        {
-            return Err(CliError::new(
-                "the layout's feature indices do not match its columns",
-            ));
-        }
-        if l.robot_positions.iter().any(|&j| j >= l.robot.len()) {
-            return Err(CliError::new("robot position index out of range"));
-        }
+        l.check_indices().map_err(CliError::new)?;
         if let Some(s) = &self.standardisation {
-            if s.mean.len() != d || s.std.len() != d {
-                return Err(CliError::new("standardisation has the wrong length"));
-            }
-            if s.mean.iter().chain(&s.std).any(|v| !v.is_finite())
-                || s.std.iter().any(|v| *v <= 0.0)
-            {
-                return Err(CliError::new(
-                    "standardisation holds a non-finite or non-positive value",
-                ));
-            }
+            s.check(d)?;
         }
         Ok(())
     }
