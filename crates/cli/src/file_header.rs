@@ -33,6 +33,10 @@ pub fn file_format(text: &str) -> Option<String> {
     h.format.and_then(|f| f.as_str().map(str::to_string))
 }
 
+/// For a format of another phasekit file: the format, and the error that
+/// tells the user what to do instead.
+pub type OtherFormat<'a> = (&'a str, &'a dyn Fn(&Path) -> CliError);
+
 /// Checks that `text` (the content of `path`) is JSON with `kind`'s format
 /// and version. `others` says, for a format of another phasekit file, what
 /// the user should do instead (e.g. a library given where a model is needed).
@@ -40,7 +44,7 @@ pub fn check_header(
     text: &str,
     path: &Path,
     kind: &FileKind,
-    others: &[(&str, &dyn Fn(&Path) -> CliError)],
+    others: &[OtherFormat<'_>],
 ) -> Result<()> {
     let p = path.display();
     let noun = kind.noun;
