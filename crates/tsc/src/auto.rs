@@ -35,8 +35,9 @@ use serde::{Deserialize, Serialize};
 use std::fmt;
 use std::str::FromStr;
 
-/// The default grid: 19 candidates over the HMM (states × regularisation),
-/// the TSC-HMM union, Student-t emissions and static GMR.
+/// The default grid: 23 candidates over the HMM (states × regularisation),
+/// the TSC-HMM union, the left-right HSMM, Student-t emissions and static GMR
+/// (Gaussian and Student-t components: ABLATION.md, "the static mixtures").
 pub const DEFAULT_GRID: &[&str] = &[
     "hmm:states=5,reg=1e-2",
     "hmm:states=5,reg=1e-3",
@@ -53,10 +54,14 @@ pub const DEFAULT_GRID: &[&str] = &[
     "tsc-hmm:states=7,reg=1e-2",
     "tsc-hmm:states=7,reg=1e-3",
     "tsc-hmm:states=4,reg=1e-3,emission=student-t",
+    "hsmm:states=4,reg=1e-2",
+    "hsmm:states=4,reg=1e-3",
     "gmm:states=5,reg=1e-2",
     "gmm:states=10,reg=1e-2",
     "gmm:states=10,reg=1e-3",
     "gmm:states=15,reg=1e-3",
+    "gmm:states=5,reg=1e-2,emission=student-t",
+    "gmm:states=10,reg=1e-3,emission=student-t",
 ];
 
 /// The small grid: 9 candidates, every family with its most useful settings.
