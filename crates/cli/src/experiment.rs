@@ -448,6 +448,11 @@ fn run_seed(
     let (mut residual, mut block, mut scratch) =
         (vec![0.0; p], vec![0.0; p * p], vec![0.0; p * (p + 1)]);
     let (mut inside, mut nlpd) = (0usize, 0.0);
+    // Calibration is scored on a best-effort basis: a predictive covariance that
+    // cannot be scored (not positive definite, e.g. with reg = 0) leaves this
+    // seed's coverage and NLPD undefined (NaN, left out of their means) but
+    // never costs the seed its MSE.
+    let mut calibration_error: Option<String> = None;
     for (k, test) in prep.test.iter().enumerate() {
         let normed = norm(removed.map_or(test, |(_, t)| &t[k]));
         let human =
@@ -460,11 +465,20 @@ fn run_seed(
         let clock = Instant::now();
         let pred = predictor.predict(input, false).map_err(|e| e.to_string())?;
         predict_seconds += clock.elapsed().as_secs_f64();
-        let with_covariance = predictor.predict(input, true).map_err(|e| e.to_string())?;
+        let with_covariance = match predictor.predict(input, true) {
+            Ok(p) if p.covariance.is_some() => Some(p),
+            Ok(_) => {
+                calibration_error.get_or_insert("the predictor returned no covariance".into());
+                None
+            }
+            Err(e) => {
+                calibration_error.get_or_insert(e.to_string());
+                None
+            }
+        };
         let cov = with_covariance
-            .covariance
             .as_ref()
-            .ok_or("the predictor returned no covariance")?;
+            .and_then(|p| p.covariance.as_deref());
         for (t, f) in test.chunks_exact(d).enumerate() {
             // A frame whose true robot position is not fully observed cannot be scored.
             if layout
@@ -482,6 +496,10 @@ fn run_seed(
             // Calibration in the model's (standardised) space, where the covariance
             // lives: Mahalanobis² does not depend on the units; the log density
             // is moved to the reported unit by the Jacobian Σ_j log(scale_j · unit_scale).
+            frames += 1;
+            let Some(cov) = cov.filter(|_| calibration_error.is_none()) else {
+                continue;
+            };
             for (a, &j) in layout.robot_positions.iter().enumerate() {
                 let k = layout.robot[j];
                 residual[a] = (f[k] - shift[k]) / scale[k] - pred.mean[t * o + j];
@@ -489,11 +507,15 @@ fn run_seed(
                     block[a * p + b] = cov[t * o * o + j * o + jb];
                 }
             }
-            let score = phasekit_gmr::score_gaussian(&residual, &block, &mut scratch)
-                .map_err(|e| format!("test demonstration {k}, frame {t}: {e}"))?;
-            inside += usize::from(score.mahalanobis2 <= limit);
-            nlpd -= score.log_density - jacobian;
-            frames += 1;
+            match phasekit_gmr::score_gaussian(&residual, &block, &mut scratch) {
+                Ok(score) => {
+                    inside += usize::from(score.mahalanobis2 <= limit);
+                    nlpd -= score.log_density - jacobian;
+                }
+                Err(e) => {
+                    calibration_error = Some(format!("test demonstration {k}, frame {t}: {e}"));
+                }
+            }
         }
     }
     if frames == 0 {
@@ -510,10 +532,14 @@ fn run_seed(
             protocol.unit_scale
         ));
     }
+    let (coverage, nlpd) = match calibration_error {
+        None => (inside as f64 / frames as f64, nlpd / frames as f64),
+        Some(_) => (f64::NAN, f64::NAN),
+    };
     Ok(SeedResult {
         mse,
-        coverage: inside as f64 / frames as f64,
-        nlpd: nlpd / frames as f64,
+        coverage,
+        nlpd,
         fit_seconds,
         predict_seconds,
         frames,
@@ -580,8 +606,17 @@ pub fn evaluate_action(
             let (rmse_mean, rmse_std) = mean_std(&rmses);
             let stat =
                 |f: fn(&SeedResult) -> f64| mean_std(&ok.iter().map(|r| f(r)).collect::<Vec<_>>());
-            let (coverage_mean, coverage_std) = stat(|r| r.coverage);
-            let (nlpd_mean, nlpd_std) = stat(|r| r.nlpd);
+            // Over the seeds whose calibration could be scored (see `run_seed`).
+            let scored = |f: fn(&SeedResult) -> f64| {
+                mean_std(
+                    &ok.iter()
+                        .map(|r| f(r))
+                        .filter(|v| v.is_finite())
+                        .collect::<Vec<_>>(),
+                )
+            };
+            let (coverage_mean, coverage_std) = scored(|r| r.coverage);
+            let (nlpd_mean, nlpd_std) = scored(|r| r.nlpd);
             let fit_seconds_std = if ok.is_empty() {
                 0.0
             } else {

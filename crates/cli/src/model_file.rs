@@ -35,11 +35,33 @@ pub const FORMAT: &str = "phasekit-model";
 /// it; this build reads every version from 1 to [`VERSION`].
 pub const VERSION: u64 = 2;
 
-/// The lowest model-file version that describes `model` (see [`VERSION`]).
-pub fn version_for(model: &Model) -> u64 {
-    match model {
-        Model::Hsmm(_) => 2,
-        Model::Hmm(_) | Model::TscHmm { .. } | Model::Gmm(_) | Model::GmmTsc { .. } => 1,
+/// The lowest model-file version that describes `model` fitted by `method`
+/// (see [`VERSION`]): 2 for what version-1 readers do not know — an HSMM, a
+/// mixture (`gmm`, `gmm-tsc`) whose components are not Gaussians, or a method
+/// whose settings hold such a choice (an `auto` grid with HSMM candidates).
+pub fn version_for(model: &Model, method: &Method) -> u64 {
+    let model_needs_2 = match model {
+        Model::Hsmm(_) => true,
+        Model::Gmm(g) | Model::GmmTsc { mixture: g, .. } => g.components().as_gaussian().is_none(),
+        Model::Hmm(_) | Model::TscHmm { .. } => false,
+    };
+    if model_needs_2 || method_needs_version_2(method) {
+        2
+    } else {
+        1
+    }
+}
+
+/// Whether `method`'s settings hold something version-1 readers do not know.
+fn method_needs_version_2(method: &Method) -> bool {
+    match method {
+        Method::Hsmm(_) => true,
+        Method::Gmm(s) | Method::GmmTsc { gmm: s, .. } => !s.emission().is_default(),
+        Method::CrossValidated(cv) => cv
+            .candidates()
+            .iter()
+            .any(|(_, m)| method_needs_version_2(m)),
+        _ => false,
     }
 }
 
@@ -239,7 +261,7 @@ impl ModelFile {
     ) -> Self {
         ModelFile {
             format: FORMAT.into(),
-            version: version_for(&model),
+            version: version_for(&model, &method.settings),
             phasekit: env!("CARGO_PKG_VERSION").into(),
             layout,
             feature_spec,
@@ -325,11 +347,11 @@ impl ModelFile {
 
     /// Checks that the parts agree with each other.
     pub fn validate(&self) -> Result<()> {
-        if self.version < version_for(&self.model) {
+        if self.version < version_for(&self.model, &self.method.settings) {
             return Err(CliError::new(format!(
                 "version {} does not describe its model (an hsmm model needs version {} or later)",
                 self.version,
-                version_for(&self.model)
+                version_for(&self.model, &self.method.settings)
             )));
         }
         let l = &self.layout;

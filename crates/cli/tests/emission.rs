@@ -44,6 +44,8 @@ fn every_emission_is_recorded_and_read_back_by_every_command() {
             let model = dir.path().join(format!("{method}-{name}.json"));
             fit(&data, &model, &["--method", method, "--emission", name]);
             let j = model_json(&model);
+            // HMM states of any of these emissions were in version 1 already.
+            assert_eq!(j["version"], 1, "{method} {name}");
             // The settings record the choice (the default is not written, so
             // that full-Gaussian files stay as they were).
             let recorded = if method == "hmm" {
@@ -186,6 +188,8 @@ fn the_emission_key_and_flag_agree_and_bad_names_are_refused() {
             )
         };
         assert_eq!(settings["emission"], "student-t", "{method}: {settings}");
+        // Version-1 readers know Gaussian mixtures only: the file says it needs 2.
+        assert_eq!(j["version"], 2, "{method}");
         assert_eq!(mixture["emission"], "student-t", "{method}: {mixture}");
         if method == "gmm-tsc" {
             assert_eq!(j["method"]["settings"]["tsc"]["emission"], "student-t");

@@ -151,3 +151,29 @@ fn model_file_versions_say_what_the_file_needs() {
         .assert()
         .failure();
 }
+
+#[test]
+fn a_maximum_duration_too_large_to_allocate_is_an_error_not_an_abort() {
+    let (dir, data) = interaction_folder(4, 5, 6, plain);
+    let out = phasekit()
+        .args([
+            "fit",
+            "--method",
+            "hsmm:max-duration=1000000000000",
+            "--data",
+        ])
+        .arg(&data)
+        .arg("-o")
+        .arg(dir.path().join("huge.json"))
+        .assert()
+        .failure()
+        .get_output()
+        .clone();
+    let err = String::from_utf8(out.stderr).unwrap();
+    assert!(err.contains("max"), "{err}");
+    assert!(
+        !err.contains("panicked") && !err.contains("memory allocation"),
+        "{err}"
+    );
+    assert!(!dir.path().join("huge.json").exists());
+}

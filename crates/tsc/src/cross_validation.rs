@@ -393,14 +393,17 @@ pub fn cv_table(cv: &CrossValidation, data: &SequenceSet, roles: &Roles) -> Resu
     )
 }
 
-/// The winner of a table: the lowest error among the candidates scored on
-/// every fold (ties: the earlier one).
+/// The winner of a table: the lowest error among the candidates that were
+/// neither abandoned nor failed, scored on the most folds any of them reached
+/// (every fold unless all survivors of a late rung failed; ties: the earlier
+/// one). An abandoned candidate never wins, even if every survivor failed.
 pub fn winner(table: &[CvRow]) -> Option<usize> {
-    let folds = table.iter().map(|r| r.folds_scored).max()?;
+    let alive = |r: &&CvRow| r.failure.is_none() && !r.abandoned && r.mse.is_finite();
+    let folds = table.iter().filter(alive).map(|r| r.folds_scored).max()?;
     table
         .iter()
         .enumerate()
-        .filter(|(_, r)| r.failure.is_none() && r.folds_scored == folds && r.mse.is_finite())
+        .filter(|(_, r)| alive(r) && r.folds_scored == folds)
         .min_by(|a, b| a.1.mse.total_cmp(&b.1.mse).then(a.0.cmp(&b.0)))
         .map(|(i, _)| i)
 }

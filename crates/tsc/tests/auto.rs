@@ -293,3 +293,36 @@ fn keys_are_validated_and_errors_name_them() {
     assert!(method_of_spec("hmm:states=x", &PresetOptions::default()).is_err());
     assert!(method_of_spec("hmm:colour=1", &PresetOptions::default()).is_err());
 }
+
+/// A table whose survivors all failed on a later rung: the abandoned
+/// candidates (scored on fewer folds) never win, and the best survivor
+/// scored on the most folds does when one is left.
+#[test]
+fn an_abandoned_candidate_never_wins() {
+    let row = |label: &str, folds: usize, mse: f64, abandoned: bool, failed: bool| -> CvRow {
+        let mut v = serde_json::json!({
+            "label": label, "folds_scored": folds, "mse": mse, "mse_sd": 0.0,
+            "fit_seconds": 0.0, "abandoned": abandoned,
+        });
+        if failed {
+            v["failure"] = "fold 3 of 5: diverged".into();
+        }
+        serde_json::from_value(v).unwrap()
+    };
+    let all_failed = [
+        row("a", 2, 1.0, true, false),
+        row("b", 2, 5.0, false, true),
+        row("c", 2, 4.0, false, true),
+    ];
+    assert_eq!(phasekit_tsc::cross_validation::winner(&all_failed), None);
+    let late_failure = [
+        row("a", 2, 1.0, true, false),
+        row("b", 3, 5.0, false, true),
+        row("c", 4, 4.0, false, false),
+        row("d", 2, 3.0, false, false),
+    ];
+    assert_eq!(
+        phasekit_tsc::cross_validation::winner(&late_failure),
+        Some(2)
+    );
+}

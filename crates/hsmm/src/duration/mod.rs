@@ -223,8 +223,23 @@ pub(crate) fn check_shape(n_states: usize, max_duration: usize) -> Result<()> {
             "the maximum duration must be at least 1 frame",
         ));
     }
-    Ok(())
+    // Every table of the model is `S × D` (the pmf, the forward variable's
+    // duration axis): refuse a size that cannot be allocated before it is
+    // (a hand-edited file or `max-duration=10^12` is an error, not an abort).
+    match n_states.checked_mul(max_duration) {
+        Some(cells) if cells <= MAX_DURATION_CELLS => Ok(()),
+        _ => Err(invalid(
+            "max_duration",
+            format!(
+                "{n_states} states × a maximum duration of {max_duration} frames exceed \
+                 {MAX_DURATION_CELLS} cells of the duration tables"
+            ),
+        )),
+    }
 }
+
+/// The largest `S · D` the duration tables may have (2²⁴ cells, 128 MiB of f64).
+pub const MAX_DURATION_CELLS: usize = 1 << 24;
 
 /// Checks the arguments of [`Duration::log_pmf_into`].
 pub(crate) fn check_pmf_call(
