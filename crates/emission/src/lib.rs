@@ -18,7 +18,8 @@
 //!
 //! Capabilities beyond it, each a small trait ([`capability`]): [`Marginal`]
 //! (the human-only filter), [`ConcatStates`] (the TSC-HMM's union) and
-//! [`Conditional`] (regression).
+//! [`Conditional`] (regression); [`ScaleFeatures`] maps a fitted emission to
+//! features multiplied by constants ([`scale`]).
 //!
 //! Implementations: [`Gaussian`] (full, diagonal, spherical and tied
 //! covariance), [`Categorical`], [`Poisson`], [`MixtureEmission`] (a mixture of
@@ -78,6 +79,7 @@ pub mod per_state;
 pub mod poisson;
 pub mod regularisation;
 pub mod restarts;
+pub mod scale;
 pub mod student_t;
 
 /// The `nalgebra` this crate's public API uses ([`Gaussian::covariance`]
@@ -103,6 +105,7 @@ pub use regularisation::{
     jitter_variances, regularised_covariance, regularised_variance, CovarianceRegularisation,
     MStepEvent, MStepReport, Regularisation,
 };
+pub use scale::{check_scales, ScaleFeatures};
 pub use student_t::{StudentT, StudentTDof, StudentTSplit};
 
 use rand::Rng;
