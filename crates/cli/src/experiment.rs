@@ -37,7 +37,9 @@ pub struct NamedMethod {
 
 /// Parses `NAME[:key=value,...]` on top of `defaults`. Keys: `states` (a number or
 /// `auto`), `tsc-states` (a number; `auto` or 0 for gmm-tsc's automatic transition
-/// clusters), `window`, `reg`, `max-iter`, `tol`, `restarts`, `seed`, `select`
+/// clusters), `window`, `reg`, `reg-units` (`absolute`, the default: data units²;
+/// `relative`: a fraction of each feature's variance over the training frames),
+/// `reg-rel` (`reg-rel=R` = `reg=R,reg-units=relative`), `max-iter`, `tol`, `restarts`, `seed`, `select`
 /// (`bic`|`gmeans`), `max-states`, `rho`, `time-clusters`, `emission` (`full`, `diag`,
 /// `spherical`, `tied`, `student-t`, `gmm-K`), and for `hsmm` `duration` (`gaussian`,
 /// `poisson`, `negative-binomial`, `non-parametric`) and `max-duration` (frames).
@@ -57,6 +59,17 @@ pub fn parse_method(spec: &str, defaults: &PresetOptions) -> Result<NamedMethod,
                 "`{k}` given twice in `{spec}`: give every setting once"
             ));
         }
+        // `reg-rel=R` is `reg=R,reg-units=relative`: with either, which was meant?
+        let clash = match k {
+            "reg-rel" => seen.iter().find(|s| matches!(**s, "reg" | "reg-units")),
+            "reg" | "reg-units" => seen.iter().find(|s| **s == "reg-rel"),
+            _ => None,
+        };
+        if let Some(other) = clash {
+            return Err(format!(
+                "`{k}` and `{other}` both given in `{spec}`: reg-rel=R is reg=R,reg-units=relative; give one or the other"
+            ));
+        }
         seen.push(k);
         let bad = |e: &dyn std::fmt::Display| format!("`{kv}` in `{spec}`: {e}");
         if name == "auto" {
@@ -66,9 +79,13 @@ pub fn parse_method(spec: &str, defaults: &PresetOptions) -> Result<NamedMethod,
                     .map_err(|e| bad(&crate::error::CliError::from(e).message))?;
                 continue;
             }
-            if matches!(k, "states" | "tsc-states" | "window" | "reg" | "emission") {
+            if matches!(
+                k,
+                "states" | "tsc-states" | "window" | "reg" | "reg-rel" | "emission"
+            ) {
                 return Err(bad(&format!(
-                    "auto chooses `{k}` by cross-validation; narrow its search with grid=small|default or families=hmm+tsc-hmm+gmm"
+                    "auto chooses `{k}` by cross-validation; narrow its search with grid=small|default or families=hmm+tsc-hmm+gmm \
+                     (reg-units=relative makes every candidate's reg a fraction of each feature's variance)"
                 )));
             }
         }
@@ -79,6 +96,17 @@ pub fn parse_method(spec: &str, defaults: &PresetOptions) -> Result<NamedMethod,
             "tsc-states" => o = o.tsc_states(v.parse().map_err(|e| bad(&e))?),
             "window" => o = o.window(v.parse().map_err(|e| bad(&e))?),
             "reg" => o = o.reg(v.parse().map_err(|e| bad(&e))?),
+            "reg-units" => {
+                o = o.reg_units(
+                    v.parse::<phasekit_tsc::RegUnits>()
+                        .map_err(|e| bad(&crate::error::CliError::from(e).message))?,
+                )
+            }
+            "reg-rel" => {
+                o = o
+                    .reg(v.parse().map_err(|e| bad(&e))?)
+                    .reg_units(phasekit_tsc::RegUnits::Relative)
+            }
             "max-iter" => o = o.max_iter(v.parse().map_err(|e| bad(&e))?),
             "tol" => o = o.tol(v.parse().map_err(|e| bad(&e))?),
             "restarts" => o = o.restarts(v.parse().map_err(|e| bad(&e))?),

@@ -38,7 +38,8 @@ pub const VERSION: u64 = 2;
 /// The lowest model-file version that describes `model` fitted by `method`
 /// (see [`VERSION`]): 2 for what version-1 readers do not know — an HSMM, a
 /// mixture (`gmm`, `gmm-tsc`) whose components are not Gaussians, or a method
-/// whose settings hold such a choice (an `auto` grid with HSMM candidates).
+/// whose settings hold such a choice (an `auto` grid with HSMM candidates), or
+/// a regularisation relative to the features' variances (`reg_units`).
 pub fn version_for(model: &Model, method: &Method) -> u64 {
     let model_needs_2 = match model {
         Model::Hsmm(_) => true,
@@ -54,6 +55,14 @@ pub fn version_for(model: &Model, method: &Method) -> u64 {
 
 /// Whether `method`'s settings hold something version-1 readers do not know.
 fn method_needs_version_2(method: &Method) -> bool {
+    // A relative regularisation (`reg_units: "relative"`) would be read as
+    // absolute by a version-1 reader: a different model.
+    if matches!(
+        method.regularisation(),
+        Some((_, phasekit_tsc::RegUnits::Relative, _))
+    ) {
+        return true;
+    }
     match method {
         Method::Hsmm(_) => true,
         Method::Gmm(s) | Method::GmmTsc { gmm: s, .. } => !s.emission().is_default(),

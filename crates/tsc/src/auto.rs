@@ -13,8 +13,10 @@
 //!
 //! Every candidate is a plain method specification, `NAME:key=value,...`, the
 //! same the command line reads (`hmm:states=7,reg=1e-3`), made on top of the
-//! options `auto` was given (seed, iterations, tolerance, runs and emission pass
-//! through; the grid's keys override): a new candidate is one line of
+//! options `auto` was given (seed, iterations, tolerance, runs, emission and the
+//! unit of `reg` pass through; the grid's keys override; a grid's `reg=` sets
+//! the amount in that unit, so `auto:reg-units=relative` makes every
+//! candidate's `reg` a fraction of each feature's variance): a new candidate is one line of
 //! [`DEFAULT_GRID`] or [`SMALL_GRID`], and its family is its preset's name.
 //!
 //! Keys (`auto:key=value`, [`AutoSettings::set`]): `grid=small|default`,
@@ -31,6 +33,7 @@ use crate::emission_choice::EmissionKind;
 use crate::error::{Result, TscError};
 use crate::method::{CrossValidation, Method};
 use crate::preset::{Preset, PresetOptions, PresetOptionsBuilder};
+use crate::reg_units::RegUnits;
 use serde::{Deserialize, Serialize};
 use std::fmt;
 use std::str::FromStr;
@@ -303,7 +306,10 @@ impl AutoSettings {
 }
 
 /// The method of a specification `NAME[:key=value,...]` on top of `base`.
-/// Keys: `states`, `tsc-states`, `window`, `reg`, `emission`, `max-iter`, `restarts`.
+/// Keys: `states`, `tsc-states`, `window`, `reg`, `reg-units`
+/// (`absolute`|`relative`), `reg-rel` (`reg-rel=R` is `reg=R,reg-units=relative`),
+/// `emission`, `max-iter`, `restarts`. `reg=` sets the amount only: its unit is
+/// `base`'s (`auto:reg-units=relative` makes every candidate's `reg` relative).
 pub fn method_of_spec(spec: &str, base: &PresetOptions) -> Result<Method> {
     let (name, rest) = spec.split_once(':').unwrap_or((spec, ""));
     let preset: Preset = name.parse()?;
@@ -335,6 +341,10 @@ fn apply_setting(
         "max-iter" => o.max_iter(num(v)?),
         "restarts" => o.restarts(num(v)?),
         "reg" => o.reg(v.parse::<f64>().map_err(|e| e.to_string())?),
+        "reg-units" => o.reg_units(v.parse::<RegUnits>().map_err(|e| e.to_string())?),
+        "reg-rel" => o
+            .reg(v.parse::<f64>().map_err(|e| e.to_string())?)
+            .reg_units(RegUnits::Relative),
         "emission" => o.emission(v.parse::<EmissionKind>().map_err(|e| e.to_string())?),
         other => return Err(format!("unknown key `{other}`")),
     })

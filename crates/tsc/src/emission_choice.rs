@@ -32,7 +32,7 @@ use phasekit_emission::{
     ConcatStates, Conditional, ConditionalSplit, CovarianceType, Emission, EmissionError, Frames,
     Gaussian, GaussianSplit, GaussianStats, MStepReport, Marginal, MixtureEmission,
     MixtureEmissionStats, MixtureSplit, PerState, PerStateSplit, PerStateStats, Regularisation,
-    Shape, StudentT, StudentTDof, StudentTSplit, SufficientStatistics,
+    ScaleFeatures, Shape, StudentT, StudentTDof, StudentTSplit, SufficientStatistics,
 };
 use rand::Rng;
 use serde::de::{self, IntoDeserializer, MapAccess, Visitor};
@@ -208,6 +208,19 @@ macro_rules! dispatch {
             $ty::Mixture($x) => $body,
         }
     };
+}
+
+impl ScaleFeatures for AnyEmission {
+    /// The held emission's [`ScaleFeatures::scale_features`] (Gaussian of any
+    /// covariance structure — spherical only with equal factors —, Student-t,
+    /// mixture), in the same variant.
+    fn scale_features(&self, s: &[f64]) -> phasekit_emission::Result<Self> {
+        Ok(match self {
+            AnyEmission::Gaussian(g) => AnyEmission::Gaussian(g.scale_features(s)?),
+            AnyEmission::StudentT(t) => AnyEmission::StudentT(t.scale_features(s)?),
+            AnyEmission::Mixture(m) => AnyEmission::Mixture(m.scale_features(s)?),
+        })
+    }
 }
 
 fn mismatch(what: &str) -> EmissionError {

@@ -3,6 +3,7 @@
 
 use crate::emission_choice::{AnyEmission, EmissionKind};
 use crate::error::{Result, TscError};
+use crate::reg_units::RegUnits;
 use crate::select::{check_range, fit_gmeans_states, gmeans_count, Selector};
 use phasekit_emission::{CovarianceType, Emission, Regularisation, SequenceSet};
 use phasekit_hmm::{
@@ -92,6 +93,9 @@ pub struct HmmSettings {
     /// Gaussians); a file without it has Gaussian states of `covariance`.
     #[serde(default, skip_serializing_if = "EmissionKind::is_default")]
     emission: EmissionKind,
+    /// The unit of `reg` (written only when relative: files without it are absolute).
+    #[serde(default, skip_serializing_if = "RegUnits::is_absolute")]
+    reg_units: RegUnits,
 }
 
 /// The serialised form of [`HmmSettings`], before validation (the field names
@@ -109,6 +113,8 @@ struct HmmSettingsRaw {
     auto_states: Option<AutoStates>,
     #[serde(default)]
     emission: Option<EmissionKind>,
+    #[serde(default)]
+    reg_units: RegUnits,
 }
 
 impl TryFrom<HmmSettingsRaw> for HmmSettings {
@@ -124,6 +130,7 @@ impl TryFrom<HmmSettingsRaw> for HmmSettings {
             covariance: r.covariance,
             auto_states: r.auto_states,
             emission: r.emission.unwrap_or(EmissionKind::Gaussian(r.covariance)),
+            reg_units: r.reg_units,
         })
         .build()
     }
@@ -142,6 +149,7 @@ impl Default for HmmSettings {
             covariance: CovarianceType::Full,
             auto_states: None,
             emission: EmissionKind::Gaussian(CovarianceType::Full),
+            reg_units: RegUnits::Absolute,
         }
     }
 }
@@ -166,6 +174,15 @@ impl HmmSettingsBuilder {
     /// every M-step, in the data's units squared (`1e-2` on data in metres is (10 cm)²).
     pub fn reg(mut self, reg: f64) -> Self {
         self.0.reg = reg;
+        self
+    }
+    /// The unit of `reg` ([`RegUnits::Relative`]: `reg · diag(v)`, `v` the
+    /// features' variances over the training frames). Applied by
+    /// [`crate::Method::fit`], which fits on the features divided by their
+    /// standard deviations and maps the model back ([`crate::reg_units`]);
+    /// [`HmmSettings::fit_selected`] itself always adds `reg` as it is.
+    pub fn reg_units(mut self, units: RegUnits) -> Self {
+        self.0.reg_units = units;
         self
     }
     /// At most `n ≥ 1` M-steps.
@@ -306,6 +323,10 @@ impl HmmSettings {
     /// The covariance regularisation `r` (see [`HmmSettingsBuilder::reg`]).
     pub fn reg(&self) -> f64 {
         self.reg
+    }
+    /// The unit of `reg` (see [`HmmSettingsBuilder::reg_units`]).
+    pub fn reg_units(&self) -> RegUnits {
+        self.reg_units
     }
     /// At most this many M-steps.
     pub fn max_iter(&self) -> usize {

@@ -687,6 +687,27 @@ impl KrishnanTsc {
         &self.time_clusters
     }
 
+    /// The same TSC with its two mixtures replaced (kept clusters, window,
+    /// minimum run and the time sub-clusters, over unitless normalised time,
+    /// unchanged), checked as a model read from a file is: the mapping of a
+    /// model to scaled features ([`crate::reg_units::scale_model`]).
+    pub(crate) fn with_mixtures(
+        &self,
+        mixture: Gmm<AnyEmission>,
+        transition_mixture: Gmm<AnyEmission>,
+    ) -> Result<Self> {
+        let m = KrishnanTsc {
+            mixture,
+            transition_mixture,
+            kept: self.kept.clone(),
+            window: self.window,
+            min_run: self.min_run,
+            time_clusters: self.time_clusters.clone(),
+        };
+        m.check()?;
+        Ok(m)
+    }
+
     /// Checks that the parts agree: kept clusters exist, time sub-clusters (if any)
     /// match the kept clusters and are 1-D.
     fn check(&self) -> Result<()> {

@@ -83,6 +83,7 @@ pub mod method;
 pub mod model;
 pub mod predictor;
 pub mod preset;
+pub mod reg_units;
 pub mod roles;
 pub mod segmentation;
 pub mod select;
@@ -105,6 +106,7 @@ pub use predictor::{human_frames, OnlinePredictor, Predictor};
 pub use preset::{
     Preset, PresetOptions, PresetOptionsBuilder, AUTO_MIN_STATES, DEFAULT_COMPOSITION,
 };
+pub use reg_units::{feature_variances, scale_data, scale_model, RegUnits};
 pub use roles::Roles;
 pub use segmentation::Segmentation;
 pub use select::{AutoCount, GMeansStates, Selector};

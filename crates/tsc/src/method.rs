@@ -7,10 +7,13 @@ use crate::hmm_settings::HmmSettings;
 use crate::hsmm_gmr::HsmmSettings;
 use crate::krishnan::KrishnanSettings;
 use crate::model::Model;
+use crate::reg_units::{feature_variances, scale_data, scale_model, RegUnits};
 use crate::roles::Roles;
 use crate::summary::FitSummary;
 use crate::tsc_hmm::{TscHmm, TscSettings};
-use phasekit_emission::{CovarianceType, Emission, Frames, Gaussian, Regularisation, SequenceSet};
+use phasekit_emission::{
+    CovarianceType, Emission, Frames, Gaussian, Regularisation, ScaleFeatures, SequenceSet,
+};
 use phasekit_gmm::{Em, Gmm};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -31,6 +34,9 @@ pub struct GmmSettings {
     /// written then, so that older files and new ones agree).
     #[serde(default, skip_serializing_if = "EmissionKind::is_default")]
     emission: EmissionKind,
+    /// The unit of `reg` (written only when relative: files without it are absolute).
+    #[serde(default, skip_serializing_if = "RegUnits::is_absolute")]
+    reg_units: RegUnits,
 }
 
 /// The serialised form of [`GmmSettings`], before validation.
@@ -44,6 +50,8 @@ struct GmmSettingsRaw {
     seed: u64,
     #[serde(default)]
     emission: EmissionKind,
+    #[serde(default)]
+    reg_units: RegUnits,
 }
 
 impl TryFrom<GmmSettingsRaw> for GmmSettings {
@@ -57,6 +65,7 @@ impl TryFrom<GmmSettingsRaw> for GmmSettings {
             restarts: r.restarts,
             seed: r.seed,
             emission: r.emission,
+            reg_units: r.reg_units,
         })
         .build()
     }
@@ -74,6 +83,7 @@ impl Default for GmmSettings {
             restarts: 3,
             seed: 0,
             emission: EmissionKind::default(),
+            reg_units: RegUnits::Absolute,
         }
     }
 }
@@ -91,6 +101,14 @@ impl GmmSettingsBuilder {
     /// `r ≥ 0` added to the covariance diagonals after every M-step.
     pub fn reg(mut self, reg: f64) -> Self {
         self.0.reg = reg;
+        self
+    }
+    /// The unit of `reg` ([`RegUnits::Relative`]: `reg · diag(v)`, `v` the
+    /// features' variances over the training frames; applied by
+    /// [`Method::fit`], see [`crate::reg_units`]). For `gmm-tsc` it is the
+    /// unit of the whole method (the TSC's mixtures too).
+    pub fn reg_units(mut self, units: RegUnits) -> Self {
+        self.0.reg_units = units;
         self
     }
     /// At most `n ≥ 1` M-steps.
@@ -157,6 +175,10 @@ impl GmmSettings {
     /// `r` added to the covariance diagonals.
     pub fn reg(&self) -> f64 {
         self.reg
+    }
+    /// The unit of `reg` (see [`GmmSettingsBuilder::reg_units`]).
+    pub fn reg_units(&self) -> RegUnits {
+        self.reg_units
     }
     /// At most this many M-steps.
     pub fn max_iter(&self) -> usize {
@@ -331,10 +353,74 @@ impl Method {
         }
     }
 
+    /// The regularisation `reg`, its unit and the emission of the method
+    /// (`None` for a cross-validated choice: every candidate has its own).
+    pub fn regularisation(&self) -> Option<(f64, RegUnits, EmissionKind)> {
+        let hmm = |s: &HmmSettings| (s.reg(), s.reg_units(), s.emission());
+        match self {
+            Method::Hmm(s) => Some(hmm(s)),
+            Method::Hsmm(s) => Some(hmm(s.hmm())),
+            Method::TscHmm(s) => Some(hmm(s.base())),
+            Method::Gmm(s) | Method::GmmTsc { gmm: s, .. } => {
+                Some((s.reg(), s.reg_units(), s.emission()))
+            }
+            Method::CrossValidated(_) => None,
+        }
+    }
+
     /// Fits the method to joint training sequences (NaN values are missing).
+    ///
+    /// With a relative regularisation ([`RegUnits::Relative`], `reg = R`) the
+    /// method is fitted unchanged on the features divided by their standard
+    /// deviations `s_j = √v_j` over `data` and mapped back to the data's units
+    /// ([`crate::reg_units`]): the regulariser is then `R · diag(v)`. The
+    /// summary's log-likelihoods and BIC values are those of the data's units
+    /// (`log p(x) = log p(x / s) − Σ_observed log s_j`), and
+    /// [`FitSummary::regularisation_per_feature`] holds `R · v_j`.
     pub fn fit(&self, data: &SequenceSet, roles: &Roles) -> Result<(Model, FitSummary)> {
-        let (model, mut summary) = self.fit_inner(data, roles)?;
+        let (model, mut summary) = match self.regularisation() {
+            Some((reg, RegUnits::Relative, kind)) => self.fit_relative(data, roles, reg, kind)?,
+            _ => self.fit_inner(data, roles)?,
+        };
         summary.missing_values = data.all_frames().missing_count();
+        Ok((model, summary))
+    }
+
+    fn fit_relative(
+        &self,
+        data: &SequenceSet,
+        roles: &Roles,
+        reg: f64,
+        kind: EmissionKind,
+    ) -> Result<(Model, FitSummary)> {
+        roles.check(data.dim())?;
+        let v = feature_variances(data);
+        let s: Vec<f64> = v.iter().map(|v| v.sqrt()).collect();
+        // Refuse an emission the mapping cannot return before spending the fit on it.
+        kind.template(1, data.dim())?.scale_features(&s)?;
+        let (model, mut summary) = self.fit_inner(&scale_data(data, &s)?, roles)?;
+        let model = scale_model(&model, &s)?;
+        // The density of x = S y is the density of y over |S| = Π s_j, per
+        // observed value: every log-likelihood loses Σ_observed log s_j.
+        let log_s: Vec<f64> = s.iter().map(|v| v.ln()).collect();
+        let d = data.dim();
+        let jacobian: f64 = data
+            .all_frames()
+            .as_slice()
+            .iter()
+            .enumerate()
+            .filter(|(_, x)| !x.is_nan())
+            .map(|(k, _)| log_s[k % d])
+            .sum();
+        summary
+            .log_likelihood
+            .iter_mut()
+            .for_each(|ll| *ll -= jacobian);
+        summary
+            .bic
+            .iter_mut()
+            .for_each(|(_, b)| *b += 2.0 * jacobian);
+        summary.regularisation_per_feature = v.iter().map(|v| reg * v).collect();
         Ok((model, summary))
     }
 

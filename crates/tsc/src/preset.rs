@@ -21,6 +21,7 @@ use crate::hmm_settings::{AutoStates, HmmSettings};
 use crate::hsmm_gmr::{DurationFamily, HsmmSettings};
 use crate::krishnan::{KrishnanSettings, TimeClustering};
 use crate::method::{CrossValidation, GmmSettings, Method};
+use crate::reg_units::RegUnits;
 use crate::select::Selector;
 use crate::tsc_hmm::{Composition, Detector, TscSettings};
 use serde::{Deserialize, Serialize};
@@ -159,6 +160,8 @@ pub struct PresetOptions {
     duration: DurationFamily,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     max_duration: Option<usize>,
+    #[serde(default, skip_serializing_if = "RegUnits::is_absolute")]
+    reg_units: RegUnits,
 }
 
 fn is_default_duration(d: &DurationFamily) -> bool {
@@ -192,6 +195,8 @@ struct PresetOptionsRaw {
     duration: DurationFamily,
     #[serde(default)]
     max_duration: Option<usize>,
+    #[serde(default)]
+    reg_units: RegUnits,
 }
 
 fn default_max_states() -> usize {
@@ -222,6 +227,7 @@ impl TryFrom<PresetOptionsRaw> for PresetOptions {
             emission: r.emission,
             duration: r.duration,
             max_duration: r.max_duration,
+            reg_units: r.reg_units,
         })
         .build()
     }
@@ -249,6 +255,7 @@ impl Default for PresetOptions {
             emission: EmissionKind::default(),
             duration: DurationFamily::default(),
             max_duration: None,
+            reg_units: RegUnits::Absolute,
         }
     }
 }
@@ -305,9 +312,19 @@ impl PresetOptionsBuilder {
         self.0.time_clusters = n;
         self
     }
-    /// Covariance regularisation `r ≥ 0` (data units squared).
+    /// Covariance regularisation `r ≥ 0`, in the unit of
+    /// [`PresetOptionsBuilder::reg_units`] (data units squared by default).
     pub fn reg(mut self, reg: f64) -> Self {
         self.0.reg = reg;
+        self
+    }
+    /// The unit of `reg`: absolute (`r I` added to every covariance, the
+    /// paper's; the default) or relative (`r · diag(v)`, `v_j` the variance of
+    /// feature `j` over the training frames, 1 for a constant feature; see
+    /// [`crate::reg_units`]). Every preset takes it, the cross-validated ones
+    /// and `auto` for every candidate.
+    pub fn reg_units(mut self, units: RegUnits) -> Self {
+        self.0.reg_units = units;
         self
     }
     /// At most `n ≥ 1` EM iterations.
@@ -430,6 +447,10 @@ impl PresetOptions {
     pub fn reg(&self) -> f64 {
         self.reg
     }
+    /// The unit of `reg`.
+    pub fn reg_units(&self) -> RegUnits {
+        self.reg_units
+    }
     /// Maximum iterations.
     pub fn max_iter(&self) -> usize {
         self.max_iter
@@ -475,6 +496,7 @@ impl Method {
         let hmm_builder = HmmSettings::builder()
             .states(o.states)
             .reg(o.reg)
+            .reg_units(o.reg_units)
             .max_iter(o.max_iter)
             .tol(o.tol)
             .restarts(o.restarts)
@@ -502,6 +524,7 @@ impl Method {
             GmmSettings::builder()
                 .components(o.states)
                 .reg(o.reg)
+                .reg_units(o.reg_units)
                 .max_iter(o.max_iter.max(100))
                 .tol(1e-3)
                 .restarts(o.restarts.max(3))

@@ -65,6 +65,14 @@ pub struct FitSummary {
     /// that know the data's meaning, e.g. the command line).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub warnings: Vec<String>,
+    /// With a regularisation relative to the features' variances
+    /// (`reg-units=relative`): the amount `R · v_j` the fit added to the
+    /// variance of every feature `j`, in the data's units squared (`v_j` the
+    /// feature's variance over the training frames, 1 for a constant one;
+    /// [`FitSummary::regularisation`] then holds `R`, a fraction). Empty for
+    /// an absolute regularisation.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub regularisation_per_feature: Vec<f64>,
 }
 
 /// Why EM stopped.
@@ -215,6 +223,7 @@ impl FitSummary {
             jittered_states: jittered,
             missing_values: 0,
             warnings: Vec::new(),
+            regularisation_per_feature: Vec::new(),
         }
     }
 }

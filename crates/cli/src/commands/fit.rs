@@ -31,6 +31,10 @@ pub struct FitReport {
     pub features: Vec<String>,
     /// Whether features were z-scored.
     pub standardised: bool,
+    /// The unit of `regularisation`: `absolute` (the features' units², added
+    /// to every covariance diagonal) or `relative` (a fraction of each
+    /// feature's variance; `regularisation_per_feature` holds the amounts).
+    pub regularisation_unit: String,
     /// What the fit did: `iterations`, `log_likelihood` (per iteration, summed over
     /// sequences), `stop` (why EM stopped), `fit_seconds`, `jitter`, `transition_segments`, …
     #[serde(flatten)]
@@ -58,6 +62,11 @@ impl FitReport {
             frames,
             features: mf.layout.features.clone(),
             standardised: mf.standardisation.is_some(),
+            regularisation_unit: if mf.fit.regularisation_per_feature.is_empty() {
+                "absolute".into()
+            } else {
+                "relative".into()
+            },
             fit: mf.fit.clone(),
             model_file,
             notes: Vec::new(),
@@ -183,7 +192,13 @@ pub fn fit_tables(
         .method
         .fit(&data, &roles)
         .map_err(|e| CliError::from(e).context(format!("fitting `{}` failed", named.label)))?;
-    summary.warnings = data_warnings(&seqs, &layout.features, summary.regularisation);
+    // A relative regularisation is below every feature's variance unless R > 1.
+    let absolute_reg = if summary.regularisation_per_feature.is_empty() {
+        summary.regularisation
+    } else {
+        0.0
+    };
+    summary.warnings = data_warnings(&seqs, &layout.features, absolute_reg);
     ModelFile::new(
         layout,
         spec.clone(),
@@ -262,7 +277,7 @@ pub fn run(a: &FitArgs) -> Result<()> {
 
 fn summary_line(r: &FitReport) -> String {
     format!(
-        "phasekit: fitted {}{} ({} states, {} emissions) to {} demonstrations ({} frames, {} features) in {:.2} s: {} EM iterations, {}{}",
+        "phasekit: fitted {}{} ({} states, {} emissions) to {} demonstrations ({} frames, {} features) in {:.2} s: {} EM iterations, {}{}{}",
         r.method,
         r.fit.chosen.as_ref().map(|c| format!(" (chose {c}{})", cv_note(&r.fit))).unwrap_or_default(),
         r.states,
@@ -273,6 +288,7 @@ fn summary_line(r: &FitReport) -> String {
         r.fit.fit_seconds,
         r.fit.iterations,
         stop_text(r.fit.stop),
+        format!("; reg {}", reg_text(r)),
         r.model_file.as_ref().map(|p| format!("; model written to {}", p.display())).unwrap_or_default()
     ) + &r
         .notes
@@ -320,6 +336,37 @@ pub fn notes(fit: &FitSummary) -> Vec<String> {
     notes
 }
 
+/// The regularisation with its unit, the same words in every format:
+/// `1e-2 × each feature's variance (…)` or `1e-2 data units² on every covariance diagonal`.
+fn reg_text(r: &FitReport) -> String {
+    let f = &r.fit;
+    if f.regularisation_per_feature.is_empty() {
+        format!(
+            "{:e} {}² on every covariance diagonal",
+            f.regularisation,
+            if r.standardised {
+                "standardised units"
+            } else {
+                "data units"
+            }
+        )
+    } else {
+        let (lo, hi) = f
+            .regularisation_per_feature
+            .iter()
+            .fold((f64::INFINITY, 0.0f64), |(a, b), v| (a.min(*v), b.max(*v)));
+        format!(
+            "{:e} × each feature's variance (added to the feature's variance: {lo:.3e} to {hi:.3e} {}²)",
+            f.regularisation,
+            if r.standardised {
+                "standardised units"
+            } else {
+                "data units"
+            }
+        )
+    }
+}
+
 fn markdown(r: &FitReport) -> String {
     let ll = r
         .fit
@@ -341,10 +388,7 @@ fn markdown(r: &FitReport) -> String {
         ),
         ("iterations", r.fit.iterations.to_string()),
         ("stop", stop_text(r.fit.stop).to_string()),
-        (
-            "regularisation (added to every covariance diagonal)",
-            format!("{:e}", r.fit.regularisation),
-        ),
+        ("regularisation", reg_text(r)),
         (
             "extra jitter (largest)",
             if r.fit.jittered_states.is_empty() {
