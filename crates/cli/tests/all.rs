@@ -16,6 +16,7 @@ mod novelty;
 mod outputs;
 mod protocol;
 mod recognition_cli;
+mod reg_units_cli;
 mod reports;
 mod robustness;
 mod stream;

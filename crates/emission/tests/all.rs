@@ -9,4 +9,5 @@ mod discrete;
 mod properties;
 mod regularisation_serde;
 mod sampling_io;
+mod scale_features;
 mod student_t;
