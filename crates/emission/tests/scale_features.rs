@@ -11,11 +11,14 @@ use phasekit_emission::{
 use proptest::prelude::*;
 use rand::Rng;
 
+/// A named check of one emission.
+type Case = (String, Box<dyn Fn(&[f64]) -> Checked>);
+
 /// Every emission the mapping supports, random, of dimension `d` (a spherical
 /// Gaussian only when `equal` factors are used).
-fn emissions(d: usize, seed: u64, equal: bool) -> Vec<(String, Box<dyn Fn(&[f64]) -> Checked>)> {
+fn emissions(d: usize, seed: u64, equal: bool) -> Vec<Case> {
     let mut r = rng(seed);
-    let mut out: Vec<(String, Box<dyn Fn(&[f64]) -> Checked>)> = Vec::new();
+    let mut out: Vec<Case> = Vec::new();
     for kind in KINDS {
         if kind == CovarianceType::Spherical && !equal {
             continue;

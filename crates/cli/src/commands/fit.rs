@@ -277,7 +277,7 @@ pub fn run(a: &FitArgs) -> Result<()> {
 
 fn summary_line(r: &FitReport) -> String {
     format!(
-        "phasekit: fitted {}{} ({} states, {} emissions) to {} demonstrations ({} frames, {} features) in {:.2} s: {} EM iterations, {}{}{}",
+        "phasekit: fitted {}{} ({} states, {} emissions) to {} demonstrations ({} frames, {} features) in {:.2} s: {} EM iterations, {}; reg {}{}",
         r.method,
         r.fit.chosen.as_ref().map(|c| format!(" (chose {c}{})", cv_note(&r.fit))).unwrap_or_default(),
         r.states,
@@ -288,7 +288,7 @@ fn summary_line(r: &FitReport) -> String {
         r.fit.fit_seconds,
         r.fit.iterations,
         stop_text(r.fit.stop),
-        format!("; reg {}", reg_text(r)),
+        reg_text(r),
         r.model_file.as_ref().map(|p| format!("; model written to {}", p.display())).unwrap_or_default()
     ) + &r
         .notes
