@@ -19,7 +19,7 @@
 
 use crate::data::{Action, FeatureSpec, Layout, Table};
 use phasekit_emission::{Frames, SequenceSet};
-use phasekit_tsc::{Method, PresetOptions, Roles, Selector};
+use phasekit_tsc::{Method, PresetOptions, Selector};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
@@ -428,14 +428,18 @@ fn run_seed(
     };
     let train: Vec<Vec<f64>> = chosen.iter().map(|s| norm(s)).collect();
     let data = SequenceSet::new(&train, d).map_err(|e| e.to_string())?;
-    let roles =
-        Roles::new(layout.human.clone(), layout.robot.clone()).map_err(|e| e.to_string())?;
+    let roles = layout.roles().map_err(|e| e.to_string())?;
     let clock = Instant::now();
     let (model, fit_summary) = method
         .fit(&data, &roles)
         .map_err(|e| crate::error::CliError::from(e).message)?;
     let fit_seconds = clock.elapsed().as_secs_f64();
-    let predictor = model.predictor(&roles).map_err(|e| e.to_string())?;
+    // A calibrated method (`auto`) multiplies its predicted covariances by the
+    // factor fitted on its training folds.
+    let predictor = model
+        .predictor(&roles)
+        .and_then(|p| p.with_covariance_scale(fit_summary.covariance_scale()))
+        .map_err(|e| e.to_string())?;
     let o = layout.robot.len();
     let (mut se, mut frames, mut predict_seconds) = (0.0, 0usize, 0.0);
     let p = layout.robot_positions.len();
