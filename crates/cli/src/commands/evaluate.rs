@@ -837,3 +837,23 @@ pub fn check(report: &Report, fail_above: Option<f64>) -> Result<()> {
     }
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_csv_header_names_the_unit_squared() {
+        let unit = |name: &str| Unit {
+            name: name.into(),
+            scale: 1.0,
+        };
+        assert_eq!(squared_suffix(&unit("cm")), "cm2");
+        assert_eq!(squared_suffix(&unit("rad")), "rad2");
+        assert_eq!(squared_suffix(&unit("data units")), "data_units_squared");
+        assert_eq!(
+            squared_suffix(&unit("data units × 2")),
+            "data_units_2_squared"
+        );
+    }
+}
