@@ -569,6 +569,10 @@ pub struct EvaluateArgs {
     /// Library settings (--task recognition).
     #[command(flatten)]
     pub library_settings: crate::commands::recognise::LibraryArgs,
+    /// Bins of normalised time (0 = first frame, 1 = last frame of a test demonstration) for
+    /// the error over time that -o writes (PREFIX_error_by_time.csv and one SVG per action)
+    #[arg(long, value_name = "N", default_value_t = crate::experiment::DEFAULT_TIME_BINS)]
+    pub time_bins: usize,
 }
 
 const PLOT_EXAMPLES: &str = "\

@@ -670,6 +670,22 @@ impl Layout {
         }
         Ok(())
     }
+
+    /// The roles of a model of this layout: the human's features in, the
+    /// robot's out, the robot's positions scored (what `evaluate` reports,
+    /// and what a cross-validated choice minimises and calibrates on).
+    pub fn roles(&self) -> std::result::Result<phasekit_tsc::Roles, phasekit_tsc::TscError> {
+        let roles = phasekit_tsc::Roles::new(self.human.clone(), self.robot.clone())?;
+        if self.robot_positions.is_empty() {
+            return Ok(roles);
+        }
+        let scored = self
+            .robot_positions
+            .iter()
+            .filter_map(|&j| self.robot.get(j).copied())
+            .collect();
+        roles.with_scored(scored)
+    }
 }
 
 fn resolve(path: &Path, columns: &[String], patterns: &[String]) -> Result<Vec<usize>> {

@@ -16,10 +16,18 @@
 //! the mean over frames of `−log N(y; μ, Σ)` in nats, with `y` in the reported
 //! unit (cm for data in metres: the density is per unit^p). Both per seed,
 //! then mean ± population std over seeds, as the MSE.
+//!
+//! Error over normalised time (issue 17): the same frames' squared errors and
+//! coverage, binned by the frame's normalised time `τ = t / (T − 1)` in its test
+//! demonstration (`T` frames; `τ = 0` when `T = 1`) into `B` equal bins
+//! ([`time_bin`], [`TimeBins`]); per seed and bin the MSE and coverage, then per
+//! bin mean, population std, 5th and 95th percentiles over seeds
+//! ([`summarise_time_bins`]). Per seed, the frame-weighted mean of the bins' MSE
+//! is the seed's MSE.
 
 use crate::data::{Action, FeatureSpec, Layout, Table};
 use phasekit_emission::{Frames, SequenceSet};
-use phasekit_tsc::{Method, PresetOptions, Roles, Selector};
+use phasekit_tsc::{Method, PresetOptions, Selector};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
@@ -163,6 +171,16 @@ pub struct Protocol {
     /// the paper's protocol removes none).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub removal: Option<Removal>,
+    /// Bins of normalised time the error is also reported in ([`TimeBins`]), at least 1.
+    #[serde(default = "default_time_bins")]
+    pub time_bins: usize,
+}
+
+/// Bins of normalised time by default (`--time-bins`).
+pub const DEFAULT_TIME_BINS: usize = 20;
+
+fn default_time_bins() -> usize {
+    DEFAULT_TIME_BINS
 }
 
 impl Default for Protocol {
@@ -173,6 +191,7 @@ impl Default for Protocol {
             unit_scale: 100.0,
             standardise: false,
             removal: None,
+            time_bins: DEFAULT_TIME_BINS,
         }
     }
 }
@@ -346,6 +365,15 @@ pub struct Row {
     /// empty when it chose nothing on any seed.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub per_seed_chosen: Vec<Option<String>>,
+    /// The error over normalised time, aggregated over seeds: one entry per bin
+    /// ([`TimeBins`], [`TimeBinSummary`]). Not serialised with the row: `evaluate`
+    /// writes it as its own table (`PREFIX_error_by_time.csv`, the JSON's `error_by_time`).
+    #[serde(skip)]
+    pub error_by_time: Vec<TimeBinSummary>,
+    /// Every seed's binned error, in seed order (`None` where the fit failed);
+    /// not serialised (the aggregate is [`Row::error_by_time`]).
+    #[serde(skip)]
+    pub per_seed_time_bins: Vec<Option<TimeBins>>,
 }
 
 fn nan() -> f64 {
@@ -354,6 +382,153 @@ fn nan() -> f64 {
 
 /// The probability of the predicted region whose coverage is reported.
 pub const COVERAGE_LEVEL: f64 = 0.95;
+
+/// The bin of normalised time of frame `t` of a demonstration of `frames` frames,
+/// among `bins` equal bins: `τ = t / (T − 1)` (`τ = 0` when `T = 1`) falls in bin
+/// `i = ⌊τ B⌋` of `[i/B, (i+1)/B)`, the last bin closed (`τ = 1` is in bin `B − 1`).
+///
+/// Computed in integers, `⌊t B / (T − 1)⌋`, so that a frame on a bin edge
+/// (`τ B` a whole number) is never put one bin low by rounding.
+///
+/// # Panics
+///
+/// When `bins` is 0 or `t ≥ frames` (programmer errors: [`Protocol::time_bins`]
+/// is checked before any seed runs).
+pub fn time_bin(t: usize, frames: usize, bins: usize) -> usize {
+    assert!(bins >= 1 && t < frames, "time_bin({t}, {frames}, {bins})");
+    if frames == 1 {
+        return 0;
+    }
+    let i = (t as u128 * bins as u128) / (frames as u128 - 1);
+    (i as usize).min(bins - 1)
+}
+
+/// One seed's prediction error binned by normalised time ([`time_bin`]): per bin,
+/// the scored frames, the sum of their squared errors (unit², the per-frame term
+/// of the MSE) and how many were covered by the 95 % region.
+///
+/// A decomposition of the seed's MSE: `Σ_b squared_error[b] / Σ_b frames[b]` is
+/// the MSE (to rounding), i.e. the frame-weighted mean of the bins' MSE.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TimeBins {
+    /// Scored frames per bin.
+    pub frames: Vec<usize>,
+    /// Sum over the bin's scored frames of the squared error, unit².
+    pub squared_error: Vec<f64>,
+    /// Covered frames per bin; `None` when the seed's calibration is undefined.
+    pub covered: Option<Vec<usize>>,
+}
+
+impl TimeBins {
+    /// `bins` empty bins.
+    pub fn new(bins: usize) -> Self {
+        TimeBins {
+            frames: vec![0; bins],
+            squared_error: vec![0.0; bins],
+            covered: Some(vec![0; bins]),
+        }
+    }
+
+    /// Number of bins.
+    pub fn len(&self) -> usize {
+        self.frames.len()
+    }
+
+    /// Whether there is no bin.
+    pub fn is_empty(&self) -> bool {
+        self.frames.is_empty()
+    }
+
+    /// MSE of bin `b`, `squared_error[b] / frames[b]` (unit²); NaN for a bin without frames.
+    pub fn mse(&self, b: usize) -> f64 {
+        if self.frames[b] == 0 {
+            f64::NAN
+        } else {
+            self.squared_error[b] / self.frames[b] as f64
+        }
+    }
+
+    /// Coverage of bin `b`, in [0, 1]; NaN for a bin without frames or an undefined calibration.
+    pub fn coverage(&self, b: usize) -> f64 {
+        match &self.covered {
+            Some(c) if self.frames[b] > 0 => c[b] as f64 / self.frames[b] as f64,
+            _ => f64::NAN,
+        }
+    }
+}
+
+/// One bin of normalised time over the seeds of an action and method.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct TimeBinSummary {
+    /// Bin index, from 0.
+    pub bin: usize,
+    /// Start of the bin in normalised time, `bin / B`.
+    pub time_from: f64,
+    /// End of the bin, `(bin + 1) / B` (excluded but for the last bin).
+    pub time_to: f64,
+    /// Scored frames in the bin, summed over the seeds.
+    pub frames: usize,
+    /// Mean over seeds of the bin's MSE (unit²); NaN where no seed has a frame in the bin.
+    pub mse_mean: f64,
+    /// Population standard deviation over seeds of the bin's MSE.
+    pub mse_sd: f64,
+    /// 5th percentile over seeds of the bin's MSE ([`percentile`]).
+    pub mse_p05: f64,
+    /// 95th percentile over seeds of the bin's MSE.
+    pub mse_p95: f64,
+    /// Mean over the seeds whose calibration is defined of the bin's coverage, in [0, 1].
+    pub coverage_mean: f64,
+}
+
+/// The `q`-quantile (`q ∈ [0, 1]`) of `v` by linear interpolation between order
+/// statistics (NumPy's default, Hyndman & Fan type 7): with `x` sorted and
+/// `h = (n − 1) q`, `x[⌊h⌋] + (h − ⌊h⌋)(x[⌊h⌋ + 1] − x[⌊h⌋])`. NaN for no value.
+pub fn percentile(v: &[f64], q: f64) -> f64 {
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    let mut x = v.to_vec();
+    x.sort_by(f64::total_cmp);
+    let h = (x.len() - 1) as f64 * q;
+    let lo = h.floor() as usize;
+    match x.get(lo + 1) {
+        Some(&next) => x[lo] + (h - lo as f64) * (next - x[lo]),
+        None => x[lo],
+    }
+}
+
+/// The per-bin summary over seeds of `seeds` (the successful ones), `bins` bins:
+/// per bin, mean, population sd and 5th/95th percentiles of the seeds' bin MSE
+/// (seeds without a frame in the bin left out), mean coverage over the seeds
+/// whose calibration is defined, total frames.
+pub fn summarise_time_bins(seeds: &[&TimeBins], bins: usize) -> Vec<TimeBinSummary> {
+    (0..bins)
+        .map(|b| {
+            let mses: Vec<f64> = seeds
+                .iter()
+                .map(|s| s.mse(b))
+                .filter(|v| v.is_finite())
+                .collect();
+            let coverages: Vec<f64> = seeds
+                .iter()
+                .map(|s| s.coverage(b))
+                .filter(|v| v.is_finite())
+                .collect();
+            let (mse_mean, mse_sd) = mean_std(&mses);
+            TimeBinSummary {
+                bin: b,
+                time_from: b as f64 / bins as f64,
+                time_to: (b + 1) as f64 / bins as f64,
+                frames: seeds.iter().map(|s| s.frames[b]).sum(),
+                mse_mean,
+                mse_sd,
+                mse_p05: percentile(&mses, 0.05),
+                mse_p95: percentile(&mses, 0.95),
+                coverage_mean: mean_std(&coverages).0,
+            }
+        })
+        .collect()
+}
 
 /// Features of every demonstration of an action, and the layout.
 pub struct Prepared {
@@ -422,6 +597,7 @@ struct SeedResult {
     frames: usize,
     states: usize,
     chosen: Option<String>,
+    time_bins: TimeBins,
 }
 
 /// One seed of one method; `removed` holds the seed's training and test
@@ -456,14 +632,18 @@ fn run_seed(
     };
     let train: Vec<Vec<f64>> = chosen.iter().map(|s| norm(s)).collect();
     let data = SequenceSet::new(&train, d).map_err(|e| e.to_string())?;
-    let roles =
-        Roles::new(layout.human.clone(), layout.robot.clone()).map_err(|e| e.to_string())?;
+    let roles = layout.roles().map_err(|e| e.to_string())?;
     let clock = Instant::now();
     let (model, fit_summary) = method
         .fit(&data, &roles)
         .map_err(|e| crate::error::CliError::from(e).message)?;
     let fit_seconds = clock.elapsed().as_secs_f64();
-    let predictor = model.predictor(&roles).map_err(|e| e.to_string())?;
+    // A calibrated method (`auto`) multiplies its predicted covariances by the
+    // factor fitted on its training folds.
+    let predictor = model
+        .predictor(&roles)
+        .and_then(|p| p.with_covariance_scale(fit_summary.covariance_scale()))
+        .map_err(|e| e.to_string())?;
     let o = layout.robot.len();
     let (mut se, mut frames, mut predict_seconds) = (0.0, 0usize, 0.0);
     let p = layout.robot_positions.len();
@@ -476,6 +656,8 @@ fn run_seed(
     let (mut residual, mut block, mut scratch) =
         (vec![0.0; p], vec![0.0; p * p], vec![0.0; p * (p + 1)]);
     let (mut inside, mut nlpd) = (0usize, 0.0);
+    // The same frames' terms binned by normalised time (`--time-bins`).
+    let mut by_time = TimeBins::new(protocol.time_bins);
     // Calibration is scored on a best-effort basis: a predictive covariance that
     // cannot be scored (not positive definite, e.g. with reg = 0) leaves this
     // seed's coverage and NLPD undefined (NaN, left out of their means) but
@@ -507,6 +689,7 @@ fn run_seed(
         let cov = with_covariance
             .as_ref()
             .and_then(|p| p.covariance.as_deref());
+        let length = test.len() / d;
         for (t, f) in test.chunks_exact(d).enumerate() {
             // A frame whose true robot position is not fully observed cannot be scored.
             if layout
@@ -516,6 +699,19 @@ fn run_seed(
             {
                 continue;
             }
+            // Beside the MSE's sum, not instead of it (its order of additions stays
+            // as it was): the frame's squared error, the same terms, in its time bin.
+            let bin = time_bin(t, length, by_time.len());
+            by_time.squared_error[bin] += layout
+                .robot_positions
+                .iter()
+                .map(|&j| {
+                    let k = layout.robot[j];
+                    let predicted = pred.mean[t * o + j] * scale[k] + shift[k];
+                    ((predicted - f[k]) * protocol.unit_scale).powi(2)
+                })
+                .sum::<f64>();
+            by_time.frames[bin] += 1;
             for &j in &layout.robot_positions {
                 let k = layout.robot[j];
                 let predicted = pred.mean[t * o + j] * scale[k] + shift[k];
@@ -538,6 +734,9 @@ fn run_seed(
             match phasekit_gmr::score_gaussian(&residual, &block, &mut scratch) {
                 Ok(score) => {
                     inside += usize::from(score.mahalanobis2 <= limit);
+                    if let Some(c) = by_time.covered.as_mut() {
+                        c[bin] += usize::from(score.mahalanobis2 <= limit);
+                    }
                     nlpd -= score.log_density - jacobian;
                 }
                 Err(e) => {
@@ -564,6 +763,9 @@ fn run_seed(
         None => (inside as f64 / frames as f64, nlpd / frames as f64),
         Some(_) => (f64::NAN, f64::NAN),
     };
+    if calibration_error.is_some() {
+        by_time.covered = None;
+    }
     Ok(SeedResult {
         mse,
         coverage,
@@ -573,6 +775,7 @@ fn run_seed(
         frames,
         states: model.n_states(),
         chosen: fit_summary.chosen,
+        time_bins: by_time,
     })
 }
 
@@ -590,6 +793,9 @@ pub fn evaluate_action(
             "action {} has no test_* demonstration to predict",
             action.name
         ));
+    }
+    if protocol.time_bins == 0 {
+        return Err("the number of time bins must be at least 1, got 0".into());
     }
     let n = prep.train.len();
     let size = protocol.train_size.unwrap_or(n.saturating_sub(2)).min(n);
@@ -686,6 +892,14 @@ pub fn evaluate_action(
                 } else {
                     Vec::new()
                 },
+                error_by_time: summarise_time_bins(
+                    &ok.iter().map(|r| &r.time_bins).collect::<Vec<_>>(),
+                    protocol.time_bins,
+                ),
+                per_seed_time_bins: per_seed
+                    .iter()
+                    .map(|r| r.as_ref().ok().map(|x| x.time_bins.clone()))
+                    .collect(),
             }
         })
         .collect())

@@ -7,6 +7,7 @@ mod calibration;
 mod cli;
 mod common;
 mod emission;
+mod error_by_time;
 mod files;
 mod hostile_input;
 mod hsmm_cli;

@@ -1334,7 +1334,8 @@ fn evaluate_prints_the_metric_compares_twice_and_fails_loudly() {
         assert!(third[col(c)].parse::<f64>().unwrap().is_finite(), "{c}");
     }
 
-    // -o DIR/ writes DIR/evaluate.md and DIR/evaluate.json (the folder is made).
+    // -o DIR/ writes DIR/evaluate.md and DIR/evaluate.json (the folder is made), and
+    // the error over time beside them.
     let outs = dir.path().join("outs");
     phasekit()
         .args(["evaluate", "--methods", "hmm", "--seeds", "2", "--data"])
@@ -1343,7 +1344,15 @@ fn evaluate_prints_the_metric_compares_twice_and_fails_loudly() {
         .arg(format!("{}/", outs.display()))
         .assert()
         .success();
-    only_files(&outs, &["evaluate.json", "evaluate.md"]);
+    only_files(
+        &outs,
+        &[
+            "evaluate.json",
+            "evaluate.md",
+            "evaluate_error_by_time.csv",
+            "evaluate_error_by_time_data.svg",
+        ],
+    );
     assert!(std::fs::read_to_string(outs.join("evaluate.md"))
         .unwrap()
         .contains("MSE: per frame"));
@@ -1355,7 +1364,15 @@ fn evaluate_prints_the_metric_compares_twice_and_fails_loudly() {
         .arg(&outs)
         .assert()
         .success();
-    only_files(&outs, &["evaluate.json", "evaluate.md"]);
+    only_files(
+        &outs,
+        &[
+            "evaluate.json",
+            "evaluate.md",
+            "evaluate_error_by_time.csv",
+            "evaluate_error_by_time_data.svg",
+        ],
+    );
 
     // A method that fails on every seed (λ_T with more states than any transition
     // segment has frames): the table is printed and written, the exit status is 1.

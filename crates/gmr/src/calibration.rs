@@ -191,3 +191,54 @@ pub fn score_gaussian(
         log_density,
     })
 }
+
+/// The factor `c` by which to multiply a predictive covariance so that a share
+/// `level` of the frames scored fall inside its `level` region: with the
+/// frames' squared Mahalanobis distances `m²_1…m²_n` under the unscaled
+/// covariance (`p` dims each) and `q` their empirical `level` quantile (the
+/// `⌈level · n⌉`-th smallest),
+///
+/// `c = q / χ²_level(p)`,
+///
+/// since `m² / c ≤ χ²_level(p)` exactly when `m² ≤ q`: after scaling, at least
+/// `level · n` of the frames are inside, and any smaller `c` leaves fewer.
+/// A calibration fitted on held-out frames (cross-validation folds) transfers
+/// the coverage to new demonstrations; the mean is unchanged.
+///
+/// Errors with no frame, a non-finite or negative distance, `level` outside
+/// `(0, 1)`, or a quantile of zero (every frame predicted exactly: no scale
+/// can be inferred).
+pub fn coverage_scale(mahalanobis2: &[f64], p: usize, level: f64) -> Result<f64> {
+    if mahalanobis2.is_empty() {
+        return Err(GmrError::InvalidDims(
+            "coverage calibration: no frame to calibrate on".into(),
+        ));
+    }
+    if let Some(v) = mahalanobis2.iter().find(|v| !(v.is_finite() && **v >= 0.0)) {
+        return Err(GmrError::InvalidDims(format!(
+            "coverage calibration: a squared Mahalanobis distance is {v}"
+        )));
+    }
+    let limit = chi_squared_quantile(level, p)?;
+    let mut sorted = mahalanobis2.to_vec();
+    sorted.sort_by(f64::total_cmp);
+    let k = ((level * sorted.len() as f64).ceil() as usize).clamp(1, sorted.len());
+    let q = sorted[k - 1];
+    if q <= 0.0 {
+        return Err(GmrError::InvalidDims(
+            "coverage calibration: the quantile of the squared distances is zero".into(),
+        ));
+    }
+    Ok(q / limit)
+}
+
+/// The mean negative log predictive density after multiplying the covariance
+/// by `c`, from the unscaled one: with `p` dims and the mean `m̄²` of the
+/// frames' squared Mahalanobis distances,
+///
+/// `NLPD(c) = NLPD(1) + (p / 2) ln c + (1 / c − 1) m̄² / 2`
+///
+/// (`log det(cΣ) = p ln c + log det Σ`, `m²` divides by `c`).
+pub fn nlpd_scaled(nlpd: f64, mean_mahalanobis2: f64, p: usize, c: f64) -> f64 {
+    nlpd + 0.5 * p as f64 * c.ln() + 0.5 * (1.0 / c - 1.0) * mean_mahalanobis2
+}

@@ -71,7 +71,10 @@ pub mod error;
 pub mod hsmm;
 pub mod regression;
 
-pub use calibration::{chi_squared_cdf, chi_squared_quantile, score_gaussian, GaussianScore};
+pub use calibration::{
+    chi_squared_cdf, chi_squared_quantile, coverage_scale, nlpd_scaled, score_gaussian,
+    GaussianScore,
+};
 pub use conditional::{check_io, Conditional};
 pub use error::{GmrError, Result};
 pub use hsmm::{HsmmRegression, OnlineHsmmRegression};

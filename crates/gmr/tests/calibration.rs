@@ -140,3 +140,75 @@ fn samples_of_the_predicted_gaussian_are_covered_at_the_nominal_rate() {
     }
     assert!((inside_small as f64 / n as f64) < 0.85);
 }
+
+#[test]
+fn coverage_scale_is_the_quantile_over_the_chi_squared_limit() {
+    // m² = 1, 2, …, 100 (p = 1): the 95 % quantile is the 95th smallest, 95.
+    let m2: Vec<f64> = (1..=100).rev().map(f64::from).collect();
+    let limit = chi_squared_quantile(0.95, 1).unwrap();
+    let c = phasekit_gmr::coverage_scale(&m2, 1, 0.95).unwrap();
+    assert!((c - 95.0 / limit).abs() < 1e-12 * c);
+    // After scaling exactly 95 of the 100 are inside; any smaller factor leaves fewer.
+    let inside = |c: f64| m2.iter().filter(|&&v| v / c <= limit).count();
+    assert_eq!(inside(c), 95);
+    assert_eq!(inside(c * (1.0 - 1e-9)), 94);
+}
+
+#[test]
+fn coverage_scale_recovers_a_known_inflation_monte_carlo() {
+    // Residuals drawn from N(0, c0·Σ) scored against Σ: m² ~ c0·χ²(p), so the
+    // fitted factor is c0 (to the sampling error of a 95 % quantile of 40,000
+    // draws, well under 2 %).
+    let mut rng = ChaCha8Rng::seed_from_u64(11);
+    for (p, c0) in [(1usize, 0.25), (3, 4.0), (6, 1.0)] {
+        let m2: Vec<f64> = (0..40_000)
+            .map(|_| {
+                (0..p)
+                    .map(|_| {
+                        let z: f64 = StandardNormal.sample(&mut rng);
+                        c0 * z * z
+                    })
+                    .sum()
+            })
+            .collect();
+        let c = phasekit_gmr::coverage_scale(&m2, p, 0.95).unwrap();
+        assert!((c / c0 - 1.0).abs() < 0.02, "p = {p}: {c} vs {c0}");
+    }
+}
+
+#[test]
+fn coverage_scale_refuses_what_it_cannot_calibrate() {
+    assert!(phasekit_gmr::coverage_scale(&[], 2, 0.95).is_err());
+    assert!(phasekit_gmr::coverage_scale(&[1.0, f64::NAN], 2, 0.95).is_err());
+    assert!(phasekit_gmr::coverage_scale(&[0.0; 10], 2, 0.95).is_err());
+    assert!(phasekit_gmr::coverage_scale(&[1.0], 2, 1.0).is_err());
+}
+
+#[test]
+fn nlpd_after_scaling_is_the_nlpd_of_the_scaled_covariance() {
+    // The closed form against scoring each residual under c·Σ directly.
+    let cov = [2.0, 0.3, -0.1, 0.3, 1.0, 0.2, -0.1, 0.2, 0.5];
+    let residuals = [[0.5, -1.0, 0.2], [2.0, 0.1, -0.7], [-0.3, 0.4, 1.1]];
+    let mut scratch = vec![0.0; 12];
+    let score = |c: f64, r: &[f64], scratch: &mut [f64]| {
+        let scaled: Vec<f64> = cov.iter().map(|v| v * c).collect();
+        score_gaussian(r, &scaled, scratch).unwrap()
+    };
+    let (mut nlpd1, mut m2) = (0.0, 0.0);
+    for r in &residuals {
+        let s = score(1.0, r, &mut scratch);
+        nlpd1 -= s.log_density / 3.0;
+        m2 += s.mahalanobis2 / 3.0;
+    }
+    for c in [0.1, 0.7, 1.0, 3.5] {
+        let direct: f64 = residuals
+            .iter()
+            .map(|r| -score(c, r, &mut scratch).log_density / 3.0)
+            .sum();
+        let closed = phasekit_gmr::nlpd_scaled(nlpd1, m2, 3, c);
+        assert!(
+            (closed - direct).abs() < 1e-12,
+            "c = {c}: {closed} vs {direct}"
+        );
+    }
+}

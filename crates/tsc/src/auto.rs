@@ -19,10 +19,17 @@
 //! candidate's `reg` a fraction of each feature's variance): a new candidate is one line of
 //! [`DEFAULT_GRID`] or [`SMALL_GRID`], and its family is its preset's name.
 //!
+//! **Calibrated uncertainty.** The winner's predictive covariance is then
+//! multiplied by the factor that makes 95 % of its held-out frames fall inside
+//! its 95 % regions (on the folds, training demonstrations only; see
+//! [`crate::cross_validation`]): the bands are the data's, not the
+//! regulariser's. The factor and the coverage/NLPD before and after are in the
+//! summary ([`crate::FitSummary::covariance_calibration`]).
+//!
 //! Keys (`auto:key=value`, [`AutoSettings::set`]): `grid=small|default`,
 //! `folds=K` (`K ≥ 2`, clamped to the number of demonstrations),
 //! `families=hmm+tsc-hmm` (a `+`-separated subset of the grid's families),
-//! `halving=on|off`.
+//! `halving=on|off`, `calibrate=on|off` (on by default).
 //!
 //! Not done: warm starts across folds (an HMM fitted on folds `A ∪ B` started
 //! from the one fitted on `A` is a different fit, so the choice would depend
@@ -131,16 +138,25 @@ pub struct AutoSettings {
     folds: usize,
     families: Option<Vec<String>>,
     halving: bool,
+    /// Settings written before calibration existed read as on: their model
+    /// files carry no calibration, so they predict as they did.
+    #[serde(default = "on")]
+    calibrate: bool,
+}
+
+fn on() -> bool {
+    true
 }
 
 impl Default for AutoSettings {
-    /// The default grid, 5 folds, every family, halving on.
+    /// The default grid, 5 folds, every family, halving on, calibration on.
     fn default() -> Self {
         AutoSettings {
             grid: Grid::Default,
             folds: 5,
             families: None,
             halving: true,
+            calibrate: true,
         }
     }
 }
@@ -168,6 +184,11 @@ impl AutoSettingsBuilder {
     /// Early abandoning by successive halving (on by default).
     pub fn halving(mut self, on: bool) -> Self {
         self.0.halving = on;
+        self
+    }
+    /// Calibrate the winner's predictive covariance on the folds (on by default).
+    pub fn calibrate(mut self, on: bool) -> Self {
+        self.0.calibrate = on;
         self
     }
     /// Validates the settings: at least 2 folds, every family one of the grid's.
@@ -241,10 +262,15 @@ impl AutoSettings {
     pub fn halving(&self) -> bool {
         self.halving
     }
+    /// Whether the winner's predictive covariance is calibrated on the folds.
+    pub fn calibrates(&self) -> bool {
+        self.calibrate
+    }
 
-    /// Whether `key` is one of `auto`'s own keys (`grid`, `folds`, `families`, `halving`).
+    /// Whether `key` is one of `auto`'s own keys (`grid`, `folds`, `families`,
+    /// `halving`, `calibrate`).
     pub fn is_key(key: &str) -> bool {
-        matches!(key, "grid" | "folds" | "families" | "halving")
+        matches!(key, "grid" | "folds" | "families" | "halving" | "calibrate")
     }
 
     /// Sets one `auto:key=value` setting on a builder; errors name the key.
@@ -263,12 +289,22 @@ impl AutoSettings {
                 "off" => b.halving(false),
                 _ => return Err(bad("halving", format!("expected on or off, got `{value}`"))),
             },
-            _ => {
-                return Err(bad(
-                    "method",
-                    format!("unknown key `{key}` of auto; known: grid, folds, families, halving"),
-                ))
-            }
+            "calibrate" => match value {
+                "on" => b.calibrate(true),
+                "off" => b.calibrate(false),
+                _ => {
+                    return Err(bad(
+                        "calibrate",
+                        format!("expected on or off, got `{value}`"),
+                    ))
+                }
+            },
+            _ => return Err(bad(
+                "method",
+                format!(
+                    "unknown key `{key}` of auto; known: grid, folds, families, halving, calibrate"
+                ),
+            )),
         })
     }
 
@@ -295,8 +331,9 @@ impl AutoSettings {
     /// The method: a cross-validated choice among [`AutoSettings::candidates`],
     /// folds shuffled by `base`'s seed, with [`Halving::default`] when on.
     pub fn method(&self, base: &PresetOptions) -> Result<Method> {
-        let cv =
-            CrossValidation::new(self.candidates(base)?, self.folds)?.with_fold_seed(base.seed());
+        let cv = CrossValidation::new(self.candidates(base)?, self.folds)?
+            .with_fold_seed(base.seed())
+            .with_calibration(self.calibrate);
         Ok(Method::CrossValidated(if self.halving {
             cv.with_halving(Halving::default())
         } else {

@@ -2,12 +2,24 @@
 //! criterion of the `-cv` presets and of `auto` ([`crate::auto`]).
 //!
 //! A candidate is a [`Method`] with a label (`hmm:states=7,reg=0.001`). Its
-//! score on fold `f` is the squared prediction error of the robot's dims
-//! from the human's, summed over the held-out demonstrations' frames, of the
-//! candidate fitted on the other demonstrations; its cross-validated error is
-//! the pooled mean over every held-out frame of the folds it was scored on
-//! (per frame, summed over the robot's dims, in data units squared: the
-//! evaluation's metric on the training demonstrations).
+//! score on fold `f` is the squared prediction error of the robot's scored
+//! dims ([`Roles::scored`]: all of the robot's unless narrowed; the command
+//! scores the positions, as `evaluate` does) from the human's, summed over the
+//! held-out demonstrations' frames, of the candidate fitted on the other
+//! demonstrations; its cross-validated error is the pooled mean over every
+//! held-out frame of the folds it was scored on (per frame, summed over the
+//! scored dims, in data units squared: the evaluation's metric on the
+//! training demonstrations).
+//!
+//! **Calibration.** Every held-out frame is also scored against the
+//! predictive covariance of the scored dims: its squared Mahalanobis distance
+//! and log density, hence each candidate's cross-validated coverage of the
+//! 95 % region and NLPD ([`CvRow::coverage`], [`CvRow::nlpd`]). With
+//! [`CrossValidation::with_calibration`] the winner's predictive covariance is
+//! then multiplied by the factor that makes its held-out frames' coverage
+//! 95 % ([`phasekit_gmr::coverage_scale`]; [`CovarianceCalibration`]): a
+//! regulariser's `(10 cm)²` bands shrink, over-confident ones widen, the mean
+//! is unchanged, and no test frame is used.
 //!
 //! **Folds.** Demonstration `k` is held out by fold `k mod K`, or, with a fold
 //! seed, the demonstrations are first shuffled by `ChaCha8Rng::seed_from_u64(seed)`
@@ -33,8 +45,9 @@ use crate::error::{Result, TscError};
 use crate::method::{CrossValidation, Method};
 use crate::model::Model;
 use crate::roles::Roles;
-use crate::summary::FitSummary;
+use crate::summary::{CovarianceCalibration, FitSummary};
 use phasekit_emission::{Frames, SequenceSet};
+use phasekit_gmr::{chi_squared_quantile, coverage_scale, nlpd_scaled, score_gaussian};
 use rand::seq::SliceRandom;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -174,6 +187,16 @@ pub struct CvRow {
     pub fit_seconds: f64,
     /// Dropped by early abandoning before scoring every fold.
     pub abandoned: bool,
+    /// Share of the held-out frames (of the folds scored) whose scored dims fall
+    /// inside the predicted 95 % region (the χ² ellipsoid of the predictive mean
+    /// and covariance), before any calibration; `None` when a predictive
+    /// covariance could not be scored (not positive definite) or no frame was.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub coverage: Option<f64>,
+    /// Mean negative log predictive density of those frames' scored dims (nats,
+    /// in data units), before any calibration; `None` as for `coverage`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub nlpd: Option<f64>,
     /// Why it could not be scored (the fold and the error), if it failed.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub failure: Option<String>,
@@ -224,8 +247,23 @@ impl FoldPlan {
     }
 }
 
-/// Squared error summed over a fold's scorable frames, their number, and the seconds it took.
-type FoldScore = Result<(f64, usize, f64)>;
+/// What one fold gave a candidate.
+#[derive(Debug, Clone, Default)]
+struct FoldOutcome {
+    /// Squared error summed over the fold's scorable frames (scored dims).
+    se: f64,
+    /// Those frames.
+    frames: usize,
+    /// Seconds of fitting and predicting.
+    seconds: f64,
+    /// Per scorable frame, `m²` of its scored dims under the predictive
+    /// covariance, and the sum of their log densities; `None` when a
+    /// covariance could not be scored (calibration is best effort: the error
+    /// still counts).
+    calibration: Option<(Vec<f64>, f64)>,
+}
+
+type FoldScore = Result<FoldOutcome>;
 
 /// Fits `method` without fold `f`'s demonstrations and scores it on them.
 fn score_fold(
@@ -245,30 +283,55 @@ fn score_fold(
     let train: Vec<usize> = (0..data.len()).filter(|&k| plan.fold_of[k] != f).collect();
     let held: Vec<usize> = (0..data.len()).filter(|&k| plan.fold_of[k] == f).collect();
     if held.is_empty() || train.is_empty() {
-        return Ok((0.0, 0, 0.0));
+        return Ok(FoldOutcome {
+            calibration: Some((Vec::new(), 0.0)),
+            ..FoldOutcome::default()
+        });
     }
     let subset = data.subset(&train).map_err(|e| in_fold(e.into()))?;
     let (model, _) = method.fit(&subset, roles).map_err(in_fold)?;
     let predictor = model.predictor(roles).map_err(in_fold)?;
     let o = roles.robot().len();
+    let (scored, outputs) = (roles.scored(), roles.scored_outputs());
+    let p = scored.len();
     let (mut se, mut frames) = (0.0, 0usize);
+    let (mut residual, mut block, mut scratch) =
+        (vec![0.0; p], vec![0.0; p * p], vec![0.0; p * (p + 1)]);
+    let mut calibration = Some((Vec::new(), 0.0));
     for &k in &held {
         let seq = data.get(k);
         let human = select(seq, roles.human());
         let input = Frames::new(&human, roles.human().len()).map_err(|e| in_fold(e.into()))?;
-        let pred = predictor.predict(input, false).map_err(in_fold)?;
+        // The mean is the same to the bit with or without the covariance.
+        let pred = predictor.predict(input, true).map_err(in_fold)?;
         for (t, x) in seq.iter().enumerate() {
-            // A frame whose robot values are not all observed is not scored.
-            if roles.robot().iter().any(|&r| x[r].is_nan()) {
+            // A frame whose scored robot values are not all observed is not scored.
+            if scored.iter().any(|&r| x[r].is_nan()) {
                 continue;
             }
-            se += roles
-                .robot()
-                .iter()
-                .enumerate()
-                .map(|(j, &r)| (pred.mean[t * o + j] - x[r]).powi(2))
-                .sum::<f64>();
+            for (a, (&r, &j)) in scored.iter().zip(&outputs).enumerate() {
+                residual[a] = x[r] - pred.mean[t * o + j];
+            }
+            se += residual.iter().map(|v| v * v).sum::<f64>();
             frames += 1;
+            if let (Some((m2, log_density)), Some(cov)) =
+                (calibration.as_mut(), pred.covariance.as_deref())
+            {
+                for (a, &j) in outputs.iter().enumerate() {
+                    for (b, &jb) in outputs.iter().enumerate() {
+                        block[a * p + b] = cov[t * o * o + j * o + jb];
+                    }
+                }
+                match score_gaussian(&residual, &block, &mut scratch) {
+                    Ok(s) => {
+                        m2.push(s.mahalanobis2);
+                        *log_density += s.log_density;
+                    }
+                    Err(_) => calibration = None,
+                }
+            } else {
+                calibration = None;
+            }
         }
     }
     if !se.is_finite() {
@@ -277,7 +340,12 @@ fn score_fold(
             reason: format!("the squared prediction error is {se}"),
         }));
     }
-    Ok((se, frames, clock.elapsed().as_secs_f64()))
+    Ok(FoldOutcome {
+        se,
+        frames,
+        seconds: clock.elapsed().as_secs_f64(),
+        calibration,
+    })
 }
 
 /// Scores every candidate by the plan, abandoning by `halving` (none: every
@@ -291,7 +359,8 @@ fn score_candidates(
 ) -> Vec<CvRowScored> {
     let n = candidates.len();
     let folds = plan.folds;
-    let mut scores: Vec<Vec<(f64, usize, f64)>> = vec![Vec::new(); n];
+    let roles_p = roles.scored().len();
+    let mut scores: Vec<Vec<FoldOutcome>> = vec![Vec::new(); n];
     let mut failure: Vec<Option<TscError>> = vec![None; n];
     let mut alive: Vec<usize> = (0..n).collect();
     let rungs = halving.map_or_else(|| vec![folds], |h| h.rungs(folds));
@@ -336,43 +405,72 @@ fn score_candidates(
             let mse = pooled(s);
             let per_fold: Vec<f64> = s
                 .iter()
-                .filter(|x| x.1 > 0)
-                .map(|x| x.0 / x.1 as f64)
+                .filter(|x| x.frames > 0)
+                .map(|x| x.se / x.frames as f64)
                 .collect();
             let mean = per_fold.iter().sum::<f64>() / per_fold.len().max(1) as f64;
             let sd = (per_fold.iter().map(|v| (v - mean).powi(2)).sum::<f64>()
                 / per_fold.len().max(1) as f64)
                 .sqrt();
             let mut fail = failure[c].take();
-            if fail.is_none() && s.len() == folds && s.iter().all(|x| x.1 == 0) {
+            if fail.is_none() && s.len() == folds && s.iter().all(|x| x.frames == 0) {
                 // A candidate with no scorable held-out frame has no error to compare.
                 fail = Some(TscError::NoScorableFrames { folds });
             }
+            // Calibration of the folds scored, if every one of them could be.
+            let pooled_calibration = s
+                .iter()
+                .map(|x| x.calibration.as_ref())
+                .collect::<Option<Vec<_>>>()
+                .map(|parts| {
+                    let m2: Vec<f64> = parts.iter().flat_map(|(m, _)| m.iter().copied()).collect();
+                    let log_density: f64 = parts.iter().map(|(_, l)| l).sum();
+                    (m2, log_density)
+                })
+                .filter(|(m2, _)| !m2.is_empty() && fail.is_none());
+            let limit = chi_squared_quantile(COVERAGE_LEVEL, roles_p);
+            let (coverage, nlpd) = match (&pooled_calibration, &limit) {
+                (Some((m2, log_density)), Ok(limit)) => (
+                    Some(m2.iter().filter(|&&v| v <= *limit).count() as f64 / m2.len() as f64),
+                    Some(-log_density / m2.len() as f64),
+                ),
+                _ => (None, None),
+            };
             CvRowScored {
                 row: CvRow {
                     label: candidates[c].0.clone(),
                     folds_scored: s.len(),
                     mse,
                     mse_sd: sd,
-                    fit_seconds: s.iter().map(|x| x.2).sum(),
+                    fit_seconds: s.iter().map(|x| x.seconds).sum(),
                     abandoned: fail.is_none() && s.len() < folds,
+                    coverage,
+                    nlpd,
                     failure: fail.as_ref().map(|e| e.to_string()),
                 },
                 scored: Scored { mse, failure: fail },
+                mahalanobis2: pooled_calibration.map(|(m2, _)| m2),
             }
         })
         .collect()
 }
 
-/// A row and its error kept as a [`TscError`].
+/// A row, its error kept as a [`TscError`], and the squared Mahalanobis
+/// distances of its held-out frames (when every fold scored could be).
 struct CvRowScored {
     row: CvRow,
     scored: Scored,
+    mahalanobis2: Option<Vec<f64>>,
 }
 
+/// The level of the predicted region whose coverage is reported and calibrated.
+pub const COVERAGE_LEVEL: f64 = 0.95;
+
 /// Pooled squared error per frame of the folds scored (NaN when no frame was).
-fn pooled(s: &[(f64, usize, f64)]) -> f64 {
-    let (se, frames) = s.iter().fold((0.0, 0), |(a, n), x| (a + x.0, n + x.1));
+fn pooled(s: &[FoldOutcome]) -> f64 {
+    let (se, frames) = s
+        .iter()
+        .fold((0.0, 0), |(a, n), x| (a + x.se, n + x.frames));
     if frames == 0 {
         f64::NAN
     } else {
@@ -408,6 +506,35 @@ pub fn winner(table: &[CvRow]) -> Option<usize> {
         .map(|(i, _)| i)
 }
 
+/// The calibration of the winner's predictive covariance from its held-out
+/// frames' squared Mahalanobis distances (see the module's docs); `None` when
+/// they could not all be scored (the winner then predicts uncalibrated, as it
+/// would without calibration; its row's coverage is `None` too).
+fn calibrate(
+    row: &CvRow,
+    mahalanobis2: Option<&[f64]>,
+    roles: &Roles,
+) -> Result<Option<CovarianceCalibration>> {
+    let (Some(m2), Some(coverage), Some(nlpd)) = (mahalanobis2, row.coverage, row.nlpd) else {
+        return Ok(None);
+    };
+    let p = roles.scored().len();
+    let Ok(scale) = coverage_scale(m2, p, COVERAGE_LEVEL) else {
+        return Ok(None);
+    };
+    let limit = chi_squared_quantile(COVERAGE_LEVEL, p)?;
+    let mean_m2 = m2.iter().sum::<f64>() / m2.len() as f64;
+    Ok(Some(CovarianceCalibration {
+        scale,
+        level: COVERAGE_LEVEL,
+        frames: m2.len(),
+        coverage_before: coverage,
+        coverage_after: m2.iter().filter(|&&v| v / scale <= limit).count() as f64 / m2.len() as f64,
+        nlpd_before: nlpd,
+        nlpd_after: nlpd_scaled(nlpd, mean_m2, p, scale),
+    }))
+}
+
 /// Fits a [`Method::CrossValidated`]: the table on `data`, then the winner
 /// refitted on all of `data`; the summary is the winner's, with the choice,
 /// the table and the whole time.
@@ -440,6 +567,10 @@ pub fn fit_cross_validated(
         });
     };
     let (model, mut summary) = candidates[best].1.fit(data, roles)?;
+    if cv.calibration() {
+        summary.covariance_calibration =
+            calibrate(&table[best], scored[best].mahalanobis2.as_deref(), roles)?;
+    }
     summary.fit_seconds = clock.elapsed().as_secs_f64();
     summary.chosen = Some(candidates[best].0.clone());
     for row in &table {

@@ -110,5 +110,5 @@ pub use reg_units::{feature_variances, scale_data, scale_model, RegUnits};
 pub use roles::Roles;
 pub use segmentation::Segmentation;
 pub use select::{AutoCount, GMeansStates, Selector};
-pub use summary::{FitStop, FitSummary};
+pub use summary::{CovarianceCalibration, FitStop, FitSummary};
 pub use tsc_hmm::{Composition, Detector, TscHmm, TscReport, TscSettings, TscSettingsBuilder};

@@ -224,6 +224,8 @@ pub struct CrossValidation {
     halving: Option<Halving>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     fold_seed: Option<u64>,
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    calibration: bool,
 }
 
 /// The serialised form of [`CrossValidation`], before validation.
@@ -235,6 +237,8 @@ struct CrossValidationRaw {
     halving: Option<Halving>,
     #[serde(default)]
     fold_seed: Option<u64>,
+    #[serde(default)]
+    calibration: bool,
 }
 
 impl TryFrom<CrossValidationRaw> for CrossValidation {
@@ -243,6 +247,7 @@ impl TryFrom<CrossValidationRaw> for CrossValidation {
         let mut cv = CrossValidation::new(r.candidates, r.folds)?;
         cv.halving = r.halving;
         cv.fold_seed = r.fold_seed;
+        cv.calibration = r.calibration;
         Ok(cv)
     }
 }
@@ -269,6 +274,7 @@ impl CrossValidation {
             folds,
             halving: None,
             fold_seed: None,
+            calibration: false,
         })
     }
     /// Early abandoning of hopeless candidates by successive halving (see
@@ -282,6 +288,17 @@ impl CrossValidation {
     pub fn with_fold_seed(mut self, seed: u64) -> Self {
         self.fold_seed = Some(seed);
         self
+    }
+    /// Calibrate the winner's predictive covariance on its held-out frames
+    /// (see [`crate::cross_validation`]): its 95 % regions then cover 95 % of
+    /// the held-out frames of the training demonstrations.
+    pub fn with_calibration(mut self, on: bool) -> Self {
+        self.calibration = on;
+        self
+    }
+    /// Whether the winner's predictive covariance is calibrated.
+    pub fn calibration(&self) -> bool {
+        self.calibration
     }
     /// The rule of early abandoning, if any.
     pub fn halving(&self) -> Option<&Halving> {

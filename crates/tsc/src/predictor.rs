@@ -16,8 +16,15 @@ type OnlineHsmmRegression = phasekit_gmr::OnlineHsmmRegression<AnyEmission>;
 
 /// Predicts the robot's dims from the human's, over whole sequences, causally
 /// (made by `Model::predictor`).
+///
+/// Every predicted covariance is multiplied by the predictor's covariance
+/// scale ([`Predictor::with_covariance_scale`]; 1 unless a calibration set
+/// it), the mean never.
 #[derive(Debug, Clone)]
-pub struct Predictor(PredictorKind);
+pub struct Predictor {
+    kind: PredictorKind,
+    covariance_scale: f64,
+}
 
 #[derive(Debug, Clone)]
 enum PredictorKind {
@@ -36,19 +43,45 @@ enum PredictorKind {
 }
 
 impl Predictor {
+    fn of(kind: PredictorKind) -> Self {
+        Predictor {
+            kind,
+            covariance_scale: 1.0,
+        }
+    }
+
+    /// The same predictor with every predicted covariance multiplied by
+    /// `scale` (finite, > 0): a calibration fitted on held-out demonstrations
+    /// (`FitSummary::covariance_scale`). The mean is unchanged.
+    pub fn with_covariance_scale(mut self, scale: f64) -> Result<Self> {
+        if !(scale.is_finite() && scale > 0.0) {
+            return Err(crate::error::TscError::InvalidSetting {
+                name: "covariance_scale",
+                reason: format!("must be finite and > 0, got {scale}"),
+            });
+        }
+        self.covariance_scale = scale;
+        Ok(self)
+    }
+
+    /// The factor every predicted covariance is multiplied by.
+    pub fn covariance_scale(&self) -> f64 {
+        self.covariance_scale
+    }
+
     /// HSMM-GMR of one HSMM.
     pub fn hsmm(r: HsmmRegression) -> Self {
-        Predictor(PredictorKind::Hsmm(Box::new(r)))
+        Predictor::of(PredictorKind::Hsmm(Box::new(r)))
     }
 
     /// HMM-GMR of one HMM.
     pub fn hmm(r: HmmRegression) -> Self {
-        Predictor(PredictorKind::Hmm(r))
+        Predictor::of(PredictorKind::Hmm(r))
     }
 
     /// The likelihood gate of `λ`'s and `λ_T`'s HMM-GMR.
     pub(crate) fn gated(base: HmmRegression, transition: HmmRegression) -> Self {
-        Predictor(PredictorKind::Gated {
+        Predictor::of(PredictorKind::Gated {
             base,
             transition: Box::new(transition),
         })
@@ -56,12 +89,12 @@ impl Predictor {
 
     /// Static GMR of a mixture.
     pub fn gmm(r: GmmRegression) -> Self {
-        Predictor(PredictorKind::Gmm(r))
+        Predictor::of(PredictorKind::Gmm(r))
     }
 
     /// Number of predicted dims.
     pub fn n_out(&self) -> usize {
-        match &self.0 {
+        match &self.kind {
             PredictorKind::Hmm(r) | PredictorKind::Gated { base: r, .. } => r.regression().n_out(),
             PredictorKind::Gmm(r) => r.regression().n_out(),
             PredictorKind::Hsmm(r) => r.regression().n_out(),
@@ -70,7 +103,17 @@ impl Predictor {
 
     /// Predicts a sequence of human frames (human dims only), causally.
     pub fn predict(&self, human: Frames<'_>, with_covariance: bool) -> Result<Prediction> {
-        match &self.0 {
+        let mut p = self.predict_unscaled(human, with_covariance)?;
+        if self.covariance_scale != 1.0 {
+            if let Some(c) = p.covariance.as_mut() {
+                c.iter_mut().for_each(|v| *v *= self.covariance_scale);
+            }
+        }
+        Ok(p)
+    }
+
+    fn predict_unscaled(&self, human: Frames<'_>, with_covariance: bool) -> Result<Prediction> {
+        match &self.kind {
             PredictorKind::Hmm(r) => Ok(r.predict(human, with_covariance)?),
             PredictorKind::Gmm(r) => Ok(r.predict(human, with_covariance)?),
             PredictorKind::Hsmm(r) => Ok(r.predict(human, with_covariance)?),
@@ -103,7 +146,7 @@ impl Predictor {
     /// A frame-by-frame predictor.
     pub fn online(&self) -> OnlinePredictor {
         let o = self.n_out();
-        OnlinePredictor(match &self.0 {
+        let kind = match &self.kind {
             PredictorKind::Hmm(r) => OnlineKind::Hmm(r.online()),
             PredictorKind::Hsmm(r) => OnlineKind::Hsmm(Box::new(r.online())),
             PredictorKind::Gated { base, transition } => OnlineKind::Gated {
@@ -122,14 +165,25 @@ impl Predictor {
                     scratch: vec![0.0; k * o],
                 }
             }
-        })
+        };
+        OnlinePredictor {
+            kind,
+            covariance_scale: self.covariance_scale,
+            scaled_covariance: vec![0.0; o * o],
+        }
     }
 }
 
 /// Frame-by-frame prediction for a control loop; no allocation per frame
 /// (made by [`Predictor::online`]).
 #[derive(Debug, Clone)]
-pub struct OnlinePredictor(OnlineKind);
+pub struct OnlinePredictor {
+    kind: OnlineKind,
+    /// The predictor's covariance scale.
+    covariance_scale: f64,
+    /// The last covariance times the scale (used when the scale is not 1).
+    scaled_covariance: Vec<f64>,
+}
 
 #[derive(Debug, Clone)]
 enum OnlineKind {
@@ -173,7 +227,19 @@ impl OnlinePredictor {
         human: &[f64],
         with_covariance: bool,
     ) -> Result<FrameEvidence> {
-        Ok(match &mut self.0 {
+        let evidence = self.step_unscaled(human, with_covariance)?;
+        if with_covariance && self.covariance_scale != 1.0 {
+            let c = self.covariance_scale;
+            let src = kind_covariance(&self.kind);
+            for (d, s) in self.scaled_covariance.iter_mut().zip(src) {
+                *d = s * c;
+            }
+        }
+        Ok(evidence)
+    }
+
+    fn step_unscaled(&mut self, human: &[f64], with_covariance: bool) -> Result<FrameEvidence> {
+        Ok(match &mut self.kind {
             OnlineKind::Hmm(r) => {
                 if with_covariance {
                     r.step_with_covariance(human)?;
@@ -223,27 +289,32 @@ impl OnlinePredictor {
 
     /// Predicted robot mean of the last step, `O` values.
     pub fn mean(&self) -> &[f64] {
-        match &self.0 {
+        match &self.kind {
             OnlineKind::Hmm(r) => r.mean(),
             OnlineKind::Hsmm(r) => r.mean(),
             OnlineKind::Gated { mean, .. } | OnlineKind::Gmm { mean, .. } => mean,
         }
     }
 
-    /// Predictive covariance of the last step (when requested), `O × O`.
+    /// Predictive covariance of the last step (when requested), `O × O`,
+    /// times the predictor's covariance scale.
     pub fn covariance(&self) -> &[f64] {
-        match &self.0 {
-            OnlineKind::Hmm(r) => r.covariance(),
-            OnlineKind::Hsmm(r) => r.covariance(),
-            OnlineKind::Gated { covariance, .. } | OnlineKind::Gmm { covariance, .. } => covariance,
+        if self.covariance_scale != 1.0 {
+            &self.scaled_covariance
+        } else {
+            self.unscaled_covariance()
         }
+    }
+
+    fn unscaled_covariance(&self) -> &[f64] {
+        kind_covariance(&self.kind)
     }
 
     /// The filtered belief over the states of the HMM the prediction filters
     /// with (the gated TSC-HMM's: `λ`'s); a static GMR's: the responsibilities
     /// of the last frame.
     pub fn belief(&self) -> &[f64] {
-        match &self.0 {
+        match &self.kind {
             OnlineKind::Hmm(r) | OnlineKind::Gated { base: r, .. } => r.belief(),
             OnlineKind::Hsmm(r) => r.belief(),
             OnlineKind::Gmm { weights, .. } => weights,
@@ -254,7 +325,7 @@ impl OnlinePredictor {
     /// HMM the prediction filters with (the gated TSC-HMM's: `λ`'s); `None`
     /// for a static GMR, which has no filter.
     pub fn log_likelihood(&self) -> Option<f64> {
-        match &self.0 {
+        match &self.kind {
             OnlineKind::Hmm(r) | OnlineKind::Gated { base: r, .. } => Some(r.log_likelihood()),
             OnlineKind::Hsmm(r) => Some(r.log_likelihood()),
             OnlineKind::Gmm { .. } => None,
@@ -263,7 +334,7 @@ impl OnlinePredictor {
 
     /// Starts a new demonstration.
     pub fn reset(&mut self) {
-        match &mut self.0 {
+        match &mut self.kind {
             OnlineKind::Hmm(r) => r.reset(),
             OnlineKind::Hsmm(r) => r.reset(),
             OnlineKind::Gated {
@@ -274,6 +345,15 @@ impl OnlinePredictor {
             }
             OnlineKind::Gmm { .. } => {}
         }
+    }
+}
+
+/// The unscaled predictive covariance of the last step of an online kind.
+fn kind_covariance(kind: &OnlineKind) -> &[f64] {
+    match kind {
+        OnlineKind::Hmm(r) => r.covariance(),
+        OnlineKind::Hsmm(r) => r.covariance(),
+        OnlineKind::Gated { covariance, .. } | OnlineKind::Gmm { covariance, .. } => covariance,
     }
 }
 

@@ -65,6 +65,12 @@ pub struct FitSummary {
     /// that know the data's meaning, e.g. the command line).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub warnings: Vec<String>,
+    /// The calibration of the predictive covariance fitted on held-out
+    /// demonstrations (a choice by cross-validation with calibration on:
+    /// `auto`); its [`CovarianceCalibration::scale`] multiplies every predicted
+    /// covariance ([`FitSummary::covariance_scale`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub covariance_calibration: Option<CovarianceCalibration>,
     /// With a regularisation relative to the features' variances
     /// (`reg-units=relative`): the amount `R · v_j` the fit added to the
     /// variance of every feature `j`, in the data's units squared (`v_j` the
@@ -73,6 +79,39 @@ pub struct FitSummary {
     /// an absolute regularisation.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub regularisation_per_feature: Vec<f64>,
+}
+
+impl FitSummary {
+    /// The factor every predicted covariance is multiplied by: the
+    /// calibration's scale, 1 without one.
+    pub fn covariance_scale(&self) -> f64 {
+        self.covariance_calibration
+            .as_ref()
+            .map_or(1.0, |c| c.scale)
+    }
+}
+
+/// A predictive covariance calibrated on held-out demonstrations: the factor
+/// `c = q / χ²_level(p)` with `q` the `level` quantile of the held-out frames'
+/// squared Mahalanobis distances (`phasekit_gmr::coverage_scale`), and what it
+/// did to those frames' coverage and NLPD (scored dims, data units).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[non_exhaustive]
+pub struct CovarianceCalibration {
+    /// `c`: multiplies every predicted covariance (> 0).
+    pub scale: f64,
+    /// The region's level (0.95).
+    pub level: f64,
+    /// Held-out frames it was fitted on.
+    pub frames: usize,
+    /// Their share inside the `level` region before scaling.
+    pub coverage_before: f64,
+    /// And after (at least `level` by construction).
+    pub coverage_after: f64,
+    /// Their mean negative log predictive density before scaling (nats).
+    pub nlpd_before: f64,
+    /// And after.
+    pub nlpd_after: f64,
 }
 
 /// Why EM stopped.
@@ -223,6 +262,7 @@ impl FitSummary {
             jittered_states: jittered,
             missing_values: 0,
             warnings: Vec::new(),
+            covariance_calibration: None,
             regularisation_per_feature: Vec::new(),
         }
     }

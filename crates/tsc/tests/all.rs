@@ -3,6 +3,7 @@
 //! Each file stays a module of its own; add a `mod` line for a new one.
 
 mod auto;
+mod calibration;
 mod emissions;
 mod gmeans_states;
 mod hsmm_preset;

@@ -7,6 +7,7 @@ use crate::data::{self, Action, FeatureSpec};
 use crate::error::{CliError, Result};
 use crate::experiment::{
     constant_mean_mse, evaluate_action, paired, parse_method, prepare, NamedMethod, Protocol, Row,
+    TimeBinSummary,
 };
 use crate::output;
 use crate::units::{mean_pm, sig4, Unit};
@@ -70,6 +71,137 @@ pub struct Report {
     pub metric: String,
     /// One row per action and method, and a baseline row per action.
     pub results: Vec<ResultRow>,
+    /// The error over normalised time, one entry per action × method × bin (the
+    /// rows of `PREFIX_error_by_time.csv`, MSE in the unit²); only when `-o` writes files.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub error_by_time: Option<Vec<ErrorByTimeRow>>,
+}
+
+/// One bin of the error over normalised time of an action and method.
+#[derive(Debug, Clone, Serialize)]
+pub struct ErrorByTimeRow {
+    /// Action.
+    pub action: String,
+    /// Method label.
+    pub method: String,
+    /// The bin over seeds.
+    #[serde(flatten)]
+    pub bin: TimeBinSummary,
+}
+
+/// The error-over-time rows of `results` (every method, not the baseline), in
+/// the order of the results table, bins in order.
+pub fn error_by_time_rows(results: &[ResultRow]) -> Vec<ErrorByTimeRow> {
+    results
+        .iter()
+        .filter(|x| !x.baseline)
+        .flat_map(|x| {
+            x.row.error_by_time.iter().map(|b| ErrorByTimeRow {
+                action: x.row.action.clone(),
+                method: x.row.method.clone(),
+                bin: b.clone(),
+            })
+        })
+        .collect()
+}
+
+/// The unit² as a column-name suffix: `cm2` for `cm`; a name that is not one
+/// word becomes `data_units_squared`.
+fn squared_suffix(unit: &Unit) -> String {
+    if !unit.name.is_empty() && unit.name.chars().all(char::is_alphanumeric) {
+        format!("{}2", unit.name)
+    } else {
+        let mut s = String::new();
+        for c in unit.name.chars() {
+            if c.is_alphanumeric() {
+                s.push(c);
+            } else if !s.ends_with('_') && !s.is_empty() {
+                s.push('_');
+            }
+        }
+        format!("{}_squared", s.trim_end_matches('_'))
+    }
+}
+
+/// `PREFIX_error_by_time.csv`: one line per action × method × bin of normalised
+/// time, `time_from`/`time_to` the bin's edges (`τ = t / (T − 1)`), `frames` the
+/// scored frames summed over seeds, the bin MSE's mean, population sd and 5th/95th
+/// percentiles over seeds in the unit² the header names (`mse_mean_cm2`), and
+/// `coverage_mean` (fraction in [0, 1] of the 95 % region). Empty where there is
+/// no value (a bin without frames; coverage undefined on every seed).
+pub fn error_by_time_csv(r: &Report) -> String {
+    let u = squared_suffix(&unit_of(&r.protocol));
+    let mut s = format!(
+        "action,method,bin,time_from,time_to,frames,mse_mean_{u},mse_sd_{u},mse_p05_{u},mse_p95_{u},coverage_mean\n"
+    );
+    let fin = |v: f64| {
+        if v.is_finite() {
+            v.to_string()
+        } else {
+            String::new()
+        }
+    };
+    for x in error_by_time_rows(&r.results) {
+        let b = &x.bin;
+        s.push_str(&format!(
+            "{},{},{},{},{},{},{},{},{},{},{}\n",
+            output::csv_field(&x.action),
+            output::csv_field(&x.method),
+            b.bin,
+            b.time_from,
+            b.time_to,
+            b.frames,
+            fin(b.mse_mean),
+            fin(b.mse_sd),
+            fin(b.mse_p05),
+            fin(b.mse_p95),
+            fin(b.coverage_mean),
+        ));
+    }
+    s
+}
+
+/// The files of the error over time beside `PREFIX.md` (`md`): the CSV and one SVG
+/// per action of the report, with their contents.
+pub fn error_by_time_files(r: &Report, md: &Path) -> Result<Vec<(PathBuf, String)>> {
+    let beside = |suffix: &str| {
+        let text = md.as_os_str().to_string_lossy();
+        let prefix = text.strip_suffix(".md").unwrap_or(&text);
+        PathBuf::from(format!("{prefix}{suffix}"))
+    };
+    let unit = unit_of(&r.protocol);
+    let mut files = vec![(beside("_error_by_time.csv"), error_by_time_csv(r))];
+    for action in &r.protocol.actions {
+        let rows: Vec<&Row> = r
+            .results
+            .iter()
+            .filter(|x| !x.baseline && &x.row.action == action)
+            .map(|x| &x.row)
+            .collect();
+        let seeds = rows.iter().map(|r| r.per_seed_mse.len()).max().unwrap_or(0);
+        let svg = crate::plot::error_by_time_svg(action, &rows, seeds, &unit)?;
+        files.push((beside(&format!("_error_by_time_{action}.svg")), svg));
+    }
+    Ok(files)
+}
+
+/// The Markdown line that names the error-over-time files (`files` as
+/// [`error_by_time_files`] gives them).
+fn error_by_time_line(r: &Report, files: &[(PathBuf, String)]) -> String {
+    let name = |p: &Path| {
+        p.file_name().map_or_else(
+            || p.display().to_string(),
+            |n| n.to_string_lossy().into_owned(),
+        )
+    };
+    let names: Vec<String> = files.iter().map(|(p, _)| name(p)).collect();
+    format!(
+        "Error against normalised time ({} bins of τ = t / (T − 1); per bin the MSE in {}, mean, sd and 5–95 % over seeds, and the coverage): {} (table); {} (plots).\n",
+        r.protocol.protocol.time_bins,
+        unit_of(&r.protocol).squared(),
+        names.first().map_or("", String::as_str),
+        names.get(1..).unwrap_or(&[]).join(", ")
+    )
 }
 
 /// The unit of the metric.
@@ -338,6 +470,8 @@ fn baseline_row(action: &str, mse: f64) -> Row {
         predict_us_per_frame: 0.0,
         states: 0,
         per_seed_chosen: Vec::new(),
+        error_by_time: Vec::new(),
+        per_seed_time_bins: Vec::new(),
     }
 }
 
@@ -473,6 +607,7 @@ pub fn evaluate(
         },
         metric: metric_text(spec, protocol, unit),
         results,
+        error_by_time: None,
     })
 }
 
@@ -496,6 +631,9 @@ pub fn run(a: &EvaluateArgs) -> Result<()> {
     let unit = a.unit.resolve()?;
     if a.train_size == Some(0) {
         bail!("--train-size must be at least 1");
+    }
+    if a.time_bins == 0 {
+        bail!("--time-bins must be at least 1 (bins of normalised time for the error over time)");
     }
     let labels = split_methods(&a.methods);
     if labels.is_empty() {
@@ -545,21 +683,34 @@ pub fn run(a: &EvaluateArgs) -> Result<()> {
         unit_scale: unit.scale,
         standardise: a.model.standardise,
         removal,
+        time_bins: a.time_bins,
     };
-    let report = evaluate(
+    let mut report = evaluate(
         &a.data, actions, &spec, defaults, &methods, &options, &protocol, &unit,
     )?;
-    let md = markdown_document(&report);
+    let mut md = markdown_document(&report);
+    // The error over time goes with the files (-o): the JSON's array, the CSV, the SVGs.
+    let extra = match &outputs {
+        Some((md_path, _)) => {
+            report.error_by_time = Some(error_by_time_rows(&report.results));
+            let files = error_by_time_files(&report, md_path)?;
+            md.push_str(&error_by_time_line(&report, &files));
+            files
+        }
+        None => Vec::new(),
+    };
     let json =
         serde_json::to_string_pretty(&report).map_err(|e| CliError::new(e.to_string()))? + "\n";
     if let Some((md_path, json_path)) = &outputs {
         if let Some(dir) = md_path.parent().filter(|p| !p.as_os_str().is_empty()) {
             output::create_dir(dir)?;
         }
-        output::write_files_atomic(&[
+        let mut files = vec![
             (md_path.clone(), md.clone()),
             (json_path.clone(), json.clone()),
-        ])?;
+        ];
+        files.extend(extra);
+        output::write_files_atomic(&files)?;
     }
     for r in report.results.iter().filter(|r| !r.row.failures.is_empty()) {
         let (seed, msg) = &r.row.failures[0];
@@ -685,4 +836,24 @@ pub fn check(report: &Report, fail_above: Option<f64>) -> Result<()> {
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_csv_header_names_the_unit_squared() {
+        let unit = |name: &str| Unit {
+            name: name.into(),
+            scale: 1.0,
+        };
+        assert_eq!(squared_suffix(&unit("cm")), "cm2");
+        assert_eq!(squared_suffix(&unit("rad")), "rad2");
+        assert_eq!(squared_suffix(&unit("data units")), "data_units_squared");
+        assert_eq!(
+            squared_suffix(&unit("data units × 2")),
+            "data_units_2_squared"
+        );
+    }
 }

@@ -9,7 +9,7 @@ use crate::experiment::parse_method;
 use crate::model_file::{MethodInfo, ModelFile, Standardisation};
 use crate::output;
 use phasekit_emission::SequenceSet;
-use phasekit_tsc::{FitStop, FitSummary, Model, PresetOptions, Roles};
+use phasekit_tsc::{FitStop, FitSummary, Model, PresetOptions};
 use serde::Serialize;
 use std::path::PathBuf;
 
@@ -185,7 +185,7 @@ pub fn fit_tables(
         seqs.iter_mut().for_each(|q| s.apply(q, &all));
     }
     let data = SequenceSet::new(&seqs, d)?;
-    let roles = Roles::new(layout.human.clone(), layout.robot.clone())?;
+    let roles = layout.roles()?;
     // The library's message names the settings as flags (`CliError::from`),
     // including its advice when the transition segments are too few or short.
     let (model, mut summary) = named
@@ -450,9 +450,10 @@ pub fn cv_table_markdown(fit: &FitSummary, standardised: bool) -> String {
         "data units²"
     };
     let mut s = format!(
-        "\nCross-validation on the training demonstrations (MSE of the robot's features per held-out frame, {unit}; \
-         ± population sd over folds; fit time summed over the candidate's folds):\n\n\
-         | candidate | folds scored | CV MSE | fit (s) | outcome |\n|---|---:|---:|---:|---|\n"
+        "\nCross-validation on the training demonstrations (MSE of the robot's scored features — its positions — per held-out frame, {unit}; \
+         ± population sd over folds; coverage of the predicted 95 % region and mean negative log predictive density (nats) of the same frames, before calibration; \
+         fit time summed over the candidate's folds):\n\n\
+         | candidate | folds scored | CV MSE | coverage 95 % | NLPD | fit (s) | outcome |\n|---|---:|---:|---:|---:|---:|---|\n"
     );
     for row in &fit.cv_table {
         let outcome = match (&row.failure, row.abandoned) {
@@ -468,9 +469,27 @@ pub fn cv_table_markdown(fit: &FitSummary, standardised: bool) -> String {
         } else {
             "–".to_string()
         };
+        let coverage = row
+            .coverage
+            .map_or("–".to_string(), |c| format!("{:.1} %", 100.0 * c));
+        let nlpd = row.nlpd.map_or("–".to_string(), |v| format!("{v:.3}"));
         s.push_str(&format!(
-            "| {} | {} | {mse} | {:.3} | {outcome} |\n",
+            "| {} | {} | {mse} | {coverage} | {nlpd} | {:.3} | {outcome} |\n",
             row.label, row.folds_scored, row.fit_seconds
+        ));
+    }
+    if let Some(c) = &fit.covariance_calibration {
+        s.push_str(&format!(
+            "\nCalibration of the chosen candidate's predictive covariance on its {} held-out frames: \
+             multiplied by {:.4}, so that {:.1} % of them (was {:.1} %) fall inside the {:.0} % region; \
+             NLPD {:.3} → {:.3} nats.\n",
+            c.frames,
+            c.scale,
+            100.0 * c.coverage_after,
+            100.0 * c.coverage_before,
+            100.0 * c.level,
+            c.nlpd_before,
+            c.nlpd_after
         ));
     }
     s

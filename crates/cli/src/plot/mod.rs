@@ -8,7 +8,9 @@
 //! * [`states`]: trajectories in a plane of two features, or an oblique 3-D view
 //!   of three with a scale on each axis, with the 2σ outlines of the predicting
 //!   model's Gaussians (transition states and clusters dashed);
-//! * [`geometry`]: the ellipses and projections the states plot draws.
+//! * [`geometry`]: the ellipses and projections the states plot draws;
+//! * [`error_by_time`]: `evaluate`'s MSE against normalised time, one line per
+//!   method with its 5–95 % band over seeds.
 //!
 //! What they share (this module): values are drawn in the reported unit (data in
 //! metres as cm unless `--unit`/`--unit-scale` say otherwise, as in the evaluate
@@ -17,11 +19,13 @@
 //! most [`MAX_BUCKETS`] buckets of frames per line, said on the plot), so a picture
 //! stays small whatever the number of frames.
 
+pub mod error_by_time;
 pub mod geometry;
 pub mod prediction;
 pub mod segmentation;
 pub mod states;
 
+pub use error_by_time::error_by_time_svg;
 pub use geometry::{Ellipse, Projection};
 pub use prediction::prediction_svg;
 pub use segmentation::segmentation_svg;
