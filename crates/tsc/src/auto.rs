@@ -299,12 +299,14 @@ impl AutoSettings {
                     ))
                 }
             },
-            _ => return Err(bad(
-                "method",
-                format!(
+            _ => {
+                return Err(bad(
+                    "method",
+                    format!(
                     "unknown key `{key}` of auto; known: grid, folds, families, halving, calibrate"
                 ),
-            )),
+                ))
+            }
         })
     }
 
