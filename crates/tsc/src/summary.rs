@@ -46,8 +46,12 @@ pub struct FitSummary {
     /// `(states, BIC)` of every candidate of an automatic choice of states.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub bic: Vec<(usize, f64)>,
-    /// Added to every covariance diagonal at every M-step (the `reg` setting; in
-    /// the features' units squared: m² for NuiSI, 1 for standardised features).
+    /// The `reg` setting. Absolute (the default): added to every covariance
+    /// diagonal at every M-step, in the features' units squared (m² for NuiSI,
+    /// 1 for standardised features). Relative (`reg-rel`): the fraction `R` of
+    /// each feature's variance, whose amounts in data units are
+    /// [`FitSummary::regularisation_per_feature`]; `jitter` is then in the
+    /// scaled units the fit ran in.
     #[serde(default)]
     pub regularisation: f64,
     /// States (components) that received no weight in the last M-step and kept
