@@ -313,7 +313,7 @@ The command-line flags set the defaults of every key.
 states=auto (--states auto) chooses the base states over 2..=max-states by BIC,
 or by G-means with select=gmeans (hmm, tsc-hmm*: λ's states; gmm-tsc: its mixture).
 auto chooses the family, states, reg and emission by cross-validated prediction error
-on the training demonstrations (keys: grid=small|default, folds=K, families=hmm+tsc-hmm+gmm,
+on the training demonstrations (keys: grid=small|default|relative, folds=K, families=hmm+tsc-hmm+gmm,
 halving=on|off; reg-units=relative makes every candidate's reg relative); fit --format md shows its cross-validation table.";
 
 /// The help text after a command's options: examples, then the presets.

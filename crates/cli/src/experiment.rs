@@ -92,7 +92,7 @@ pub fn parse_method(spec: &str, defaults: &PresetOptions) -> Result<NamedMethod,
                 "states" | "tsc-states" | "window" | "reg" | "reg-rel" | "emission"
             ) {
                 return Err(bad(&format!(
-                    "auto chooses `{k}` by cross-validation; narrow its search with grid=small|default or families=hmm+tsc-hmm+gmm \
+                    "auto chooses `{k}` by cross-validation; narrow its search with grid=small|default|relative or families=hmm+tsc-hmm+gmm \
                      (reg-units=relative makes every candidate's reg a fraction of each feature's variance)"
                 )));
             }

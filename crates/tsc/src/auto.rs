@@ -26,7 +26,7 @@
 //! regulariser's. The factor and the coverage/NLPD before and after are in the
 //! summary ([`crate::FitSummary::covariance_calibration`]).
 //!
-//! Keys (`auto:key=value`, [`AutoSettings::set`]): `grid=small|default`,
+//! Keys (`auto:key=value`, [`AutoSettings::set`]): `grid=small|default|relative`,
 //! `folds=K` (`K ≥ 2`, clamped to the number of demonstrations),
 //! `families=hmm+tsc-hmm` (a `+`-separated subset of the grid's families),
 //! `halving=on|off`, `calibrate=on|off` (on by default).
@@ -74,6 +74,36 @@ pub const DEFAULT_GRID: &[&str] = &[
     "gmm:states=10,reg=1e-3,emission=student-t",
 ];
 
+/// The default grid in units of the data: every candidate's `reg` a fraction
+/// of each feature's variance (`reg-rel`), 0.3, 0.1 and 0.03 where the
+/// default grid has 1e-2, 3e-3 and 1e-3 m² (those values over a hand
+/// position's typical variance on NuiSI, 0.03 m²), for data in any unit.
+pub const RELATIVE_GRID: &[&str] = &[
+    "hmm:states=5,reg-rel=0.3",
+    "hmm:states=5,reg-rel=0.03",
+    "hmm:states=7,reg-rel=0.3",
+    "hmm:states=7,reg-rel=0.1",
+    "hmm:states=7,reg-rel=0.03",
+    "hmm:states=10,reg-rel=0.3",
+    "hmm:states=10,reg-rel=0.1",
+    "hmm:states=10,reg-rel=0.03",
+    "hmm:states=13,reg-rel=0.03",
+    "hmm:states=7,reg-rel=0.03,emission=student-t",
+    "tsc-hmm:states=4,reg-rel=0.3",
+    "tsc-hmm:states=4,reg-rel=0.03",
+    "tsc-hmm:states=7,reg-rel=0.3",
+    "tsc-hmm:states=7,reg-rel=0.03",
+    "tsc-hmm:states=4,reg-rel=0.03,emission=student-t",
+    "hsmm:states=4,reg-rel=0.3",
+    "hsmm:states=4,reg-rel=0.03",
+    "gmm:states=5,reg-rel=0.3",
+    "gmm:states=10,reg-rel=0.3",
+    "gmm:states=10,reg-rel=0.03",
+    "gmm:states=15,reg-rel=0.03",
+    "gmm:states=5,reg-rel=0.3,emission=student-t",
+    "gmm:states=10,reg-rel=0.03,emission=student-t",
+];
+
 /// The small grid: 9 candidates, every family with its most useful settings.
 pub const SMALL_GRID: &[&str] = &[
     "hmm:states=5,reg=1e-2",
@@ -96,6 +126,8 @@ pub enum Grid {
     /// [`DEFAULT_GRID`].
     #[default]
     Default,
+    /// [`RELATIVE_GRID`].
+    Relative,
 }
 
 impl Grid {
@@ -104,6 +136,7 @@ impl Grid {
         match self {
             Grid::Small => SMALL_GRID,
             Grid::Default => DEFAULT_GRID,
+            Grid::Relative => RELATIVE_GRID,
         }
     }
 }
@@ -113,6 +146,7 @@ impl fmt::Display for Grid {
         f.write_str(match self {
             Grid::Small => "small",
             Grid::Default => "default",
+            Grid::Relative => "relative",
         })
     }
 }
@@ -123,9 +157,10 @@ impl FromStr for Grid {
         match s {
             "small" => Ok(Grid::Small),
             "default" => Ok(Grid::Default),
+            "relative" => Ok(Grid::Relative),
             _ => Err(TscError::InvalidSetting {
                 name: "grid",
-                reason: format!("unknown grid `{s}`; known: small, default"),
+                reason: format!("unknown grid `{s}`; known: small, default, relative"),
             }),
         }
     }

@@ -280,8 +280,8 @@ fn keys_are_validated_and_errors_name_them() {
         .all(|(l, _)| l.starts_with("hmm:") || l.starts_with("tsc-hmm:")));
     assert!(AutoSettings::is_key("grid") && !AutoSettings::is_key("states"));
 
-    // Every specification of both grids makes a method; `auto` is a preset.
-    for grid in [Grid::Small, Grid::Default] {
+    // Every specification of every grid makes a method; `auto` is a preset.
+    for grid in [Grid::Small, Grid::Default, Grid::Relative] {
         let s = AutoSettings::builder().grid(grid).build().unwrap();
         assert_eq!(
             s.candidates(&PresetOptions::default()).unwrap().len(),
@@ -324,5 +324,71 @@ fn an_abandoned_candidate_never_wins() {
     assert_eq!(
         phasekit_tsc::cross_validation::winner(&late_failure),
         Some(2)
+    );
+}
+
+/// `auto:grid=relative` is a setting that means the same in any unit: the
+/// data with the human in centimetres and the robot in kilometres give the
+/// same choice, the same table (errors scaled by the robot's unit²) and the
+/// same predictions in the new units; the default grid, in absolute units,
+/// does not.
+#[test]
+fn the_relative_grid_chooses_the_same_in_any_unit() {
+    let seqs = phased(8, 21);
+    let a = [100.0, 1e-3];
+    let scaled: Vec<Vec<f64>> = seqs
+        .iter()
+        .map(|q| q.iter().enumerate().map(|(i, v)| v * a[i % 2]).collect())
+        .collect();
+    let fit = |grid: Grid, data: &[Vec<f64>]| {
+        let s = AutoSettings::builder()
+            .grid(grid)
+            .families(["hmm", "gmm"])
+            .build()
+            .unwrap();
+        auto(&s).fit(&set(data), &roles()).unwrap()
+    };
+    let (m1, s1) = fit(Grid::Relative, &seqs);
+    let (m2, s2) = fit(Grid::Relative, &scaled);
+    assert_eq!(s1.chosen, s2.chosen);
+    for (r1, r2) in s1.cv_table.iter().zip(&s2.cv_table) {
+        assert_eq!(r1.label, r2.label);
+        if r1.mse.is_finite() {
+            let want = r1.mse * a[1] * a[1];
+            assert!((r2.mse - want).abs() <= 1e-7 * want, "{r1:?} vs {r2:?}");
+        }
+    }
+    let human: Vec<f64> = seqs[0].chunks(2).map(|x| x[0]).collect();
+    let human2: Vec<f64> = human.iter().map(|v| v * a[0]).collect();
+    let p1 = m1
+        .predictor(&roles())
+        .unwrap()
+        .predict(Frames::new(&human, 1).unwrap(), false)
+        .unwrap();
+    let p2 = m2
+        .predictor(&roles())
+        .unwrap()
+        .predict(Frames::new(&human2, 1).unwrap(), false)
+        .unwrap();
+    for (x, y) in p1.mean.iter().zip(&p2.mean) {
+        assert!(
+            (x * a[1] - y).abs() <= 1e-7 * (x * a[1]).abs().max(1e-9),
+            "{x} vs {y}"
+        );
+    }
+    // The absolute grid's regularisation is in data units: on the rescaled
+    // data it is another model.
+    let (_, d1) = fit(Grid::Default, &seqs);
+    let (_, d2) = fit(Grid::Default, &scaled);
+    let ratio: Vec<f64> = d1
+        .cv_table
+        .iter()
+        .zip(&d2.cv_table)
+        .filter(|(x, y)| x.mse.is_finite() && y.mse.is_finite())
+        .map(|(x, y)| y.mse / (x.mse * a[1] * a[1]))
+        .collect();
+    assert!(
+        ratio.iter().any(|r| (r - 1.0).abs() > 1e-3),
+        "the absolute grid should not be unit-free: {ratio:?}"
     );
 }
