@@ -38,8 +38,9 @@ pub const VERSION: u64 = 2;
 /// The lowest model-file version that describes `model` fitted by `method`
 /// (see [`VERSION`]): 2 for what version-1 readers do not know — an HSMM, a
 /// mixture (`gmm`, `gmm-tsc`) whose components are not Gaussians, or a method
-/// whose settings hold such a choice (an `auto` grid with HSMM candidates), or
-/// a regularisation relative to the features' variances (`reg_units`).
+/// whose settings hold such a choice (an `auto` grid with HSMM candidates), a
+/// regularisation relative to the features' variances (`reg_units`), or a
+/// calibrated predictive covariance (`auto`).
 pub fn version_for(model: &Model, method: &Method) -> u64 {
     let model_needs_2 = match model {
         Model::Hsmm(_) => true,
@@ -66,10 +67,15 @@ fn method_needs_version_2(method: &Method) -> bool {
     match method {
         Method::Hsmm(_) => true,
         Method::Gmm(s) | Method::GmmTsc { gmm: s, .. } => !s.emission().is_default(),
-        Method::CrossValidated(cv) => cv
-            .candidates()
-            .iter()
-            .any(|(_, m)| method_needs_version_2(m)),
+        // A calibrated covariance (`auto`) would be ignored by a version-1
+        // reader: the same mean with other bands.
+        Method::CrossValidated(cv) => {
+            cv.calibration()
+                || cv
+                    .candidates()
+                    .iter()
+                    .any(|(_, m)| method_needs_version_2(m))
+        }
         _ => false,
     }
 }

@@ -148,3 +148,97 @@ fn auto_keys_are_validated() {
         assert!(err.contains(expected), "{method}: {err}");
     }
 }
+
+/// `auto` calibrates its predictive covariance on its folds, says so in the
+/// report and the model file, and `predict --covariance` applies the factor
+/// to every covariance and never to the mean (against the same choice with
+/// `calibrate=off`).
+#[test]
+fn predict_applies_autos_calibration_to_the_covariance_only() {
+    let (dir, data) = interaction_folder(6, 3, 6, plain);
+    let fit = |spec: &str, name: &str| {
+        let model = dir.path().join(name);
+        let report: serde_json::Value = serde_json::from_str(&stdout(
+            phasekit()
+                .args(["fit", "--method", spec, "--format", "json", "--data"])
+                .arg(&data)
+                .arg("-o")
+                .arg(&model),
+        ))
+        .unwrap();
+        (model, report)
+    };
+    let (on, r_on) = fit("auto:grid=small,folds=3", "on.json");
+    let (off, r_off) = fit("auto:grid=small,folds=3,calibrate=off", "off.json");
+    assert_eq!(r_on["chosen"], r_off["chosen"]);
+    assert!(r_off.get("covariance_calibration").is_none(), "{r_off}");
+    let cal = &r_on["covariance_calibration"];
+    let scale = cal["scale"].as_f64().unwrap();
+    assert!(scale > 0.0 && (scale - 1.0).abs() > 1e-6, "{cal}");
+    assert!(cal["coverage_after"].as_f64().unwrap() >= 0.95, "{cal}");
+    // Every scored candidate has its held-out coverage in the table.
+    let table = r_on["cv_table"].as_array().unwrap();
+    assert!(table
+        .iter()
+        .filter(|r| r["abandoned"] == false)
+        .all(|r| r["coverage"].as_f64().is_some()));
+    let file = std::fs::read_to_string(&on).unwrap();
+    assert!(file.contains("\"covariance_calibration\""));
+    // A version-1 reader would ignore the factor: the file says version 2.
+    let v: serde_json::Value = serde_json::from_str(&file).unwrap();
+    assert_eq!(v["version"], 2);
+
+    let test = std::fs::read_dir(&data)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .find(|p| p.extension().is_some_and(|x| x == "csv"))
+        .unwrap();
+    let predict = |model: &std::path::Path, out: &str| {
+        let out = dir.path().join(out);
+        phasekit()
+            .args(["predict", "--covariance", "--model"])
+            .arg(model)
+            .arg("--data")
+            .arg(&test)
+            .arg("-o")
+            .arg(&out)
+            .assert()
+            .success();
+        let text = std::fs::read_to_string(&out).unwrap();
+        let mut lines = text.lines();
+        let header: Vec<String> = lines
+            .next()
+            .unwrap()
+            .split(',')
+            .map(str::to_string)
+            .collect();
+        let rows: Vec<Vec<f64>> = lines
+            .map(|l| {
+                l.split(',')
+                    .map(|v| v.parse().unwrap_or(f64::NAN))
+                    .collect()
+            })
+            .collect();
+        (header, rows)
+    };
+    let (h_on, p_on) = predict(&on, "on.csv");
+    let (h_off, p_off) = predict(&off, "off.csv");
+    assert_eq!(h_on, h_off);
+    let mut checked = 0;
+    for (a, b) in p_on.iter().zip(&p_off) {
+        for (k, name) in h_on.iter().enumerate() {
+            if name.starts_with("var_") || name.starts_with("cov_") {
+                assert!(
+                    (a[k] - b[k] * scale).abs() <= 1e-9 * (b[k] * scale).abs().max(1e-12),
+                    "{name}: {} vs {} × {scale}",
+                    a[k],
+                    b[k]
+                );
+                checked += 1;
+            } else if !a[k].is_nan() {
+                assert_eq!(a[k], b[k], "{name}: the mean must not move");
+            }
+        }
+    }
+    assert!(checked > 0, "no covariance column in {h_on:?}");
+}
