@@ -96,8 +96,10 @@ class InteractionModel:
         Threads of the fit (joblib convention; None: one).
     **options
         The command's other settings: ``tsc_states``, ``window``, ``reg``,
-        ``max_iter``, ``tol``, ``restarts``, ``seed``, ``max_states``,
-        ``select``, ``rho``, ``time_clusters``.
+        ``reg_units`` (``"absolute"``, data units², or ``"relative"``, a
+        fraction of each feature's variance), ``max_iter``, ``tol``,
+        ``restarts``, ``seed``, ``max_states``, ``select``, ``rho``,
+        ``time_clusters``, ``emission``, ``duration``, ``max_duration``.
 
     Examples
     --------

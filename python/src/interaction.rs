@@ -64,7 +64,7 @@ fn velocity(v: &str) -> PyResult<Velocity> {
 /// keys are the options' names: `states`, `tsc_states`, `window`, `reg`,
 /// `max_iter`, `tol`, `restarts`, `seed`, …); an unknown key is an error.
 fn preset_options(overrides: &str) -> PyResult<PresetOptions> {
-    let mut base = serde_json::to_value(PresetOptions::default()).map_err(runtime_error)?;
+    let mut base = option_defaults()?;
     let given: serde_json::Map<String, serde_json::Value> = serde_json::from_str(overrides)
         .map_err(|e| PyValueError::new_err(format!("options: {e}")))?;
     let fields = base
@@ -88,10 +88,35 @@ fn preset_options(overrides: &str) -> PyResult<PresetOptions> {
     serde_json::from_value(base).map_err(|e| PyValueError::new_err(format!("options: {e}")))
 }
 
+/// Every option and its default value, as a JSON object: the serialised
+/// defaults, plus the options whose default the serialisation leaves out (so
+/// that files written before they existed stay as they were) — `emission`,
+/// `duration`, `max_duration`, `reg_units` — which are options all the same.
+fn option_defaults() -> PyResult<serde_json::Value> {
+    let d = PresetOptions::default();
+    let mut base = serde_json::to_value(&d).map_err(runtime_error)?;
+    let fields = base
+        .as_object_mut()
+        .ok_or_else(|| runtime_error("preset options are not an object"))?;
+    let value = |v: serde_json::Result<serde_json::Value>| v.map_err(runtime_error);
+    for (k, v) in [
+        ("emission", value(serde_json::to_value(d.emission()))?),
+        ("duration", value(serde_json::to_value(d.duration()))?),
+        (
+            "max_duration",
+            value(serde_json::to_value(d.max_duration()))?,
+        ),
+        ("reg_units", value(serde_json::to_value(d.reg_units()))?),
+    ] {
+        fields.entry(k).or_insert(v);
+    }
+    Ok(base)
+}
+
 /// Option names and default values of the command's methods, as JSON.
 #[pyfunction]
 pub fn default_options() -> PyResult<String> {
-    serde_json::to_string(&PresetOptions::default()).map_err(runtime_error)
+    serde_json::to_string(&option_defaults()?).map_err(runtime_error)
 }
 
 /// A fitted interaction model: a model file's content and its predictor.

@@ -142,6 +142,12 @@ def test_inputs_options_pickle_and_errors(folder):
     assert a.fit_summary["iterations"] >= 1
     with pytest.raises(ValueError, match="unknown option"):
         InteractionModel("hmm", colour=3).fit(frames)
+    # Options whose default is not written in files are options all the same:
+    # reg_units="relative" is the method key reg-rel, to the bit.
+    r = InteractionModel("hmm", states=3, reg=5e-2, reg_units="relative", seed=1).fit(frames, human=["p1_*"], robot=["p2_*"])
+    s = InteractionModel("hmm:reg-rel=5e-2", states=3, seed=1).fit(frames, human=["p1_*"], robot=["p2_*"])
+    np.testing.assert_array_equal(r.predict(test).mean, s.predict(test).mean)
+    assert not np.array_equal(r.predict(test).mean, InteractionModel("hmm", states=3, reg=5e-2, seed=1).fit(frames, human=["p1_*"], robot=["p2_*"]).predict(test).mean)
     with pytest.raises(ValueError, match="no column matches `nose_\\*`"):
         InteractionModel("hmm").fit(frames, human=["nose_*"], robot=["p2_*"])
     with pytest.raises(ValueError, match="needs the human's column `p1_wrist_x`"):
