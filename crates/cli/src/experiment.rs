@@ -380,8 +380,9 @@ fn nan() -> f64 {
     f64::NAN
 }
 
-/// The probability of the predicted region whose coverage is reported.
-pub const COVERAGE_LEVEL: f64 = 0.95;
+/// The probability of the predicted region whose coverage is reported (the
+/// level `auto` calibrates to).
+pub use phasekit_gmr::COVERAGE_LEVEL;
 
 /// The bin of normalised time of frame `t` of a demonstration of `frames` frames,
 /// among `bins` equal bins: `τ = t / (T − 1)` (`τ = 0` when `T = 1`) falls in bin
@@ -727,10 +728,13 @@ fn run_seed(
             for (a, &j) in layout.robot_positions.iter().enumerate() {
                 let k = layout.robot[j];
                 residual[a] = (f[k] - shift[k]) / scale[k] - pred.mean[t * o + j];
-                for (b, &jb) in layout.robot_positions.iter().enumerate() {
-                    block[a * p + b] = cov[t * o * o + j * o + jb];
-                }
             }
+            phasekit_gmr::covariance_block(
+                &cov[t * o * o..(t + 1) * o * o],
+                o,
+                &layout.robot_positions,
+                &mut block,
+            );
             match phasekit_gmr::score_gaussian(&residual, &block, &mut scratch) {
                 Ok(score) => {
                     inside += usize::from(score.mahalanobis2 <= limit);

@@ -14,6 +14,22 @@
 
 use crate::error::{GmrError, Result};
 
+/// The probability of the predicted region whose coverage is reported
+/// (`evaluate`) and calibrated (`auto`): one value for both.
+pub const COVERAGE_LEVEL: f64 = 0.95;
+
+/// Copies the `p × p` block of the rows and columns `dims` (`p = dims.len()`)
+/// of an `o × o` row-major covariance into `block`: the predictive covariance
+/// of the scored outputs, for [`score_gaussian`].
+pub fn covariance_block(covariance: &[f64], o: usize, dims: &[usize], block: &mut [f64]) {
+    let p = dims.len();
+    for (a, &j) in dims.iter().enumerate() {
+        for (b, &jb) in dims.iter().enumerate() {
+            block[a * p + b] = covariance[j * o + jb];
+        }
+    }
+}
+
 /// `ln Γ(x)` for `x > 0` (Lanczos, g = 7, 9 terms; relative error below 1e-15).
 pub fn ln_gamma(x: f64) -> f64 {
     const G: f64 = 7.0;

@@ -47,7 +47,10 @@ use crate::model::Model;
 use crate::roles::Roles;
 use crate::summary::{CovarianceCalibration, FitSummary};
 use phasekit_emission::{Frames, SequenceSet};
-use phasekit_gmr::{chi_squared_quantile, coverage_scale, nlpd_scaled, score_gaussian};
+pub use phasekit_gmr::COVERAGE_LEVEL;
+use phasekit_gmr::{
+    chi_squared_quantile, covariance_block, coverage_scale, nlpd_scaled, score_gaussian,
+};
 use rand::seq::SliceRandom;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -317,11 +320,7 @@ fn score_fold(
             if let (Some((m2, log_density)), Some(cov)) =
                 (calibration.as_mut(), pred.covariance.as_deref())
             {
-                for (a, &j) in outputs.iter().enumerate() {
-                    for (b, &jb) in outputs.iter().enumerate() {
-                        block[a * p + b] = cov[t * o * o + j * o + jb];
-                    }
-                }
+                covariance_block(&cov[t * o * o..(t + 1) * o * o], o, &outputs, &mut block);
                 match score_gaussian(&residual, &block, &mut scratch) {
                     Ok(s) => {
                         m2.push(s.mahalanobis2);
@@ -359,7 +358,7 @@ fn score_candidates(
 ) -> Vec<CvRowScored> {
     let n = candidates.len();
     let folds = plan.folds;
-    let roles_p = roles.scored().len();
+    let limit = chi_squared_quantile(COVERAGE_LEVEL, roles.scored().len());
     let mut scores: Vec<Vec<FoldOutcome>> = vec![Vec::new(); n];
     let mut failure: Vec<Option<TscError>> = vec![None; n];
     let mut alive: Vec<usize> = (0..n).collect();
@@ -428,7 +427,6 @@ fn score_candidates(
                     (m2, log_density)
                 })
                 .filter(|(m2, _)| !m2.is_empty() && fail.is_none());
-            let limit = chi_squared_quantile(COVERAGE_LEVEL, roles_p);
             let (coverage, nlpd) = match (&pooled_calibration, &limit) {
                 (Some((m2, log_density)), Ok(limit)) => (
                     Some(m2.iter().filter(|&&v| v <= *limit).count() as f64 / m2.len() as f64),
@@ -462,9 +460,6 @@ struct CvRowScored {
     scored: Scored,
     mahalanobis2: Option<Vec<f64>>,
 }
-
-/// The level of the predicted region whose coverage is reported and calibrated.
-pub const COVERAGE_LEVEL: f64 = 0.95;
 
 /// Pooled squared error per frame of the folds scored (NaN when no frame was).
 fn pooled(s: &[FoldOutcome]) -> f64 {
