@@ -96,8 +96,10 @@ class InteractionModel:
         Threads of the fit (joblib convention; None: one).
     **options
         The command's other settings: ``tsc_states``, ``window``, ``reg``,
-        ``reg_units`` (``"absolute"``, data units², or ``"relative"``, a
-        fraction of each feature's variance), ``max_iter``, ``tol``,
+        ``reg_units`` (``"absolute"``, data units²; ``"relative"``, a
+        fraction of each feature's variance; or ``"positions"``, a fraction of
+        the variance of each feature's position, a velocity's being its
+        position's), ``max_iter``, ``tol``,
         ``restarts``, ``seed``, ``max_states``, ``select``, ``rho``,
         ``time_clusters``, ``emission``, ``duration``, ``max_duration``.
 

@@ -304,8 +304,10 @@ it also records the out-of-distribution threshold of predict and stream, calibra
 on the training demonstrations.
 
 Methods (presets): see the list below; settings per method with NAME:key=value,...
-(keys: states, tsc-states, window, reg, reg-units = absolute|relative, reg-rel (reg-rel=R is
-reg=R,reg-units=relative: R × each feature's variance), max-iter, tol, restarts, seed, select,
+(keys: states, tsc-states, window, reg, reg-units = absolute|relative|positions, reg-rel
+(reg-rel=R is reg=R,reg-units=relative: R × each feature's variance), reg-pos (reg-pos=R is
+reg=R,reg-units=positions: R × the variance of each feature's position, a velocity's being its
+position's: the same fit in any unit), max-iter, tol, restarts, seed, select,
 max-states, rho, time-clusters, emission; hsmm: duration = gaussian|poisson|negative-binomial|
 non-parametric, max-duration = frames), e.g. tsc-hmm:states=5,window=2,
 gmm-tsc:states=auto,select=gmeans,rho=0.6 or hsmm:states=7,duration=poisson.
@@ -313,8 +315,10 @@ The command-line flags set the defaults of every key.
 states=auto (--states auto) chooses the base states over 2..=max-states by BIC,
 or by G-means with select=gmeans (hmm, tsc-hmm*: λ's states; gmm-tsc: its mixture).
 auto chooses the family, states, reg and emission by cross-validated prediction error
-on the training demonstrations (keys: grid=small|default|relative, folds=K, families=hmm+tsc-hmm+gmm,
-halving=on|off; reg-units=relative makes every candidate's reg relative); fit --format md shows its cross-validation table.";
+on the training demonstrations (keys: grid=small|default|relative|positions|mixed, folds=K,
+families=hmm+tsc-hmm+gmm, halving=on|off, calibrate=on|frames|off: its 95 % regions widened to
+cover 95 % of a left-out demonstration, or of the pooled held-out frames; reg-units=relative
+makes every candidate's reg relative); fit --format md shows its cross-validation table.";
 
 /// The help text after a command's options: examples, then the presets.
 fn with_presets(examples: &str) -> String {

@@ -671,11 +671,28 @@ impl Layout {
         Ok(())
     }
 
+    /// The `(velocity, position)` feature pairs of `--velocity`: each side's
+    /// columns are followed by their velocities in the same order.
+    pub fn velocity_pairs(&self) -> Vec<(usize, usize)> {
+        let hv = matches!(self.velocity, Velocity::Both | Velocity::Human);
+        let rv = matches!(self.velocity, Velocity::Both | Velocity::Robot);
+        let side = |dims: &[usize], columns: usize, on: bool| -> Vec<(usize, usize)> {
+            if !on || dims.len() != 2 * columns {
+                return Vec::new();
+            }
+            (0..columns).map(|i| (dims[columns + i], dims[i])).collect()
+        };
+        let mut pairs = side(&self.human, self.human_columns.len(), hv);
+        pairs.extend(side(&self.robot, self.robot_columns.len(), rv));
+        pairs
+    }
+
     /// The roles of a model of this layout: the human's features in, the
     /// robot's out, the robot's positions scored (what `evaluate` reports,
     /// and what a cross-validated choice minimises and calibrates on).
     pub fn roles(&self) -> std::result::Result<phasekit_tsc::Roles, phasekit_tsc::TscError> {
-        let roles = phasekit_tsc::Roles::new(self.human.clone(), self.robot.clone())?;
+        let roles = phasekit_tsc::Roles::new(self.human.clone(), self.robot.clone())?
+            .with_velocities(self.velocity_pairs())?;
         if self.robot_positions.is_empty() {
             return Ok(roles);
         }

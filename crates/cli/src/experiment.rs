@@ -46,8 +46,10 @@ pub struct NamedMethod {
 /// Parses `NAME[:key=value,...]` on top of `defaults`. Keys: `states` (a number or
 /// `auto`), `tsc-states` (a number; `auto` or 0 for gmm-tsc's automatic transition
 /// clusters), `window`, `reg`, `reg-units` (`absolute`, the default: data units²;
-/// `relative`: a fraction of each feature's variance over the training frames),
-/// `reg-rel` (`reg-rel=R` = `reg=R,reg-units=relative`), `max-iter`, `tol`, `restarts`, `seed`, `select`
+/// `relative`: a fraction of each feature's variance over the training frames;
+/// `positions`: a fraction of the variance of each feature's position),
+/// `reg-rel` (`reg-rel=R` = `reg=R,reg-units=relative`), `reg-pos` (`reg-pos=R` =
+/// `reg=R,reg-units=positions`), `max-iter`, `tol`, `restarts`, `seed`, `select`
 /// (`bic`|`gmeans`), `max-states`, `rho`, `time-clusters`, `emission` (`full`, `diag`,
 /// `spherical`, `tied`, `student-t`, `gmm-K`), and for `hsmm` `duration` (`gaussian`,
 /// `poisson`, `negative-binomial`, `non-parametric`) and `max-duration` (frames).
@@ -67,15 +69,19 @@ pub fn parse_method(spec: &str, defaults: &PresetOptions) -> Result<NamedMethod,
                 "`{k}` given twice in `{spec}`: give every setting once"
             ));
         }
-        // `reg-rel=R` is `reg=R,reg-units=relative`: with either, which was meant?
+        // `reg-rel=R` is `reg=R,reg-units=relative` (`reg-pos`: positions):
+        // with any other of these, which was meant?
         let clash = match k {
-            "reg-rel" => seen.iter().find(|s| matches!(**s, "reg" | "reg-units")),
-            "reg" | "reg-units" => seen.iter().find(|s| **s == "reg-rel"),
+            "reg-rel" | "reg-pos" | "reg" | "reg-units" => seen.iter().find(|s| {
+                matches!(**s, "reg-rel" | "reg-pos" | "reg" | "reg-units")
+                    && (matches!(k, "reg-rel" | "reg-pos") || matches!(**s, "reg-rel" | "reg-pos"))
+            }),
             _ => None,
         };
         if let Some(other) = clash {
             return Err(format!(
-                "`{k}` and `{other}` both given in `{spec}`: reg-rel=R is reg=R,reg-units=relative; give one or the other"
+                "`{k}` and `{other}` both given in `{spec}`: reg-rel=R is reg=R,reg-units=relative \
+                 and reg-pos=R is reg=R,reg-units=positions; give one or the other"
             ));
         }
         seen.push(k);
@@ -89,10 +95,10 @@ pub fn parse_method(spec: &str, defaults: &PresetOptions) -> Result<NamedMethod,
             }
             if matches!(
                 k,
-                "states" | "tsc-states" | "window" | "reg" | "reg-rel" | "emission"
+                "states" | "tsc-states" | "window" | "reg" | "reg-rel" | "reg-pos" | "emission"
             ) {
                 return Err(bad(&format!(
-                    "auto chooses `{k}` by cross-validation; narrow its search with grid=small|default|relative or families=hmm+tsc-hmm+gmm \
+                    "auto chooses `{k}` by cross-validation; narrow its search with grid=small|default|relative|positions|mixed or families=hmm+tsc-hmm+gmm \
                      (reg-units=relative makes every candidate's reg a fraction of each feature's variance)"
                 )));
             }
@@ -114,6 +120,11 @@ pub fn parse_method(spec: &str, defaults: &PresetOptions) -> Result<NamedMethod,
                 o = o
                     .reg(v.parse().map_err(|e| bad(&e))?)
                     .reg_units(phasekit_tsc::RegUnits::Relative)
+            }
+            "reg-pos" => {
+                o = o
+                    .reg(v.parse().map_err(|e| bad(&e))?)
+                    .reg_units(phasekit_tsc::RegUnits::Positions)
             }
             "max-iter" => o = o.max_iter(v.parse().map_err(|e| bad(&e))?),
             "tol" => o = o.tol(v.parse().map_err(|e| bad(&e))?),
@@ -344,18 +355,31 @@ pub struct Row {
     pub fit_seconds_std: f64,
     /// Mean over seeds of the fraction of scored frames whose true robot
     /// position lies in the predicted 95 % region (χ² ellipsoid), in [0, 1].
-    #[serde(default = "nan")]
+    /// Undefined (NaN, `null` in JSON) when no seed's could be scored.
+    #[serde(default = "nan", deserialize_with = "nan_if_null")]
     pub coverage_mean: f64,
     /// Population std over seeds of the coverage.
-    #[serde(default = "nan")]
+    #[serde(default = "nan", deserialize_with = "nan_if_null")]
     pub coverage_std: f64,
     /// Mean over seeds of the mean negative log predictive density per frame
     /// (nats, robot position in the reported unit).
-    #[serde(default = "nan")]
+    #[serde(default = "nan", deserialize_with = "nan_if_null")]
     pub nlpd_mean: f64,
     /// Population std over seeds of the NLPD.
-    #[serde(default = "nan")]
+    #[serde(default = "nan", deserialize_with = "nan_if_null")]
     pub nlpd_std: f64,
+    /// Every seed's coverage of the 95 % region, in seed order (`None` where
+    /// the fit failed or the predictive covariance could not be scored).
+    #[serde(default)]
+    pub per_seed_coverage: Vec<Option<f64>>,
+    /// Every seed's NLPD, in seed order (`None` as for the coverage).
+    #[serde(default)]
+    pub per_seed_nlpd: Vec<Option<f64>>,
+    /// Every seed's calibration factor of the predictive covariance (`auto`:
+    /// [`phasekit_tsc::FitSummary::covariance_scale`]), in seed order; empty
+    /// when no seed's fit calibrated.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub per_seed_covariance_scale: Vec<Option<f64>>,
     /// Mean prediction time per test frame, microseconds (batch path).
     pub predict_us_per_frame: f64,
     /// Total states of the predicting model (first successful seed).
@@ -378,6 +402,12 @@ pub struct Row {
 
 fn nan() -> f64 {
     f64::NAN
+}
+
+/// Reads a number written from an undefined (NaN) value, which JSON writes
+/// as `null`, back as NaN, so that a report reads back what it wrote.
+fn nan_if_null<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+    Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
 }
 
 /// The probability of the predicted region whose coverage is reported (the
@@ -598,6 +628,8 @@ struct SeedResult {
     frames: usize,
     states: usize,
     chosen: Option<String>,
+    /// The calibration factor of the predictive covariance, when the fit calibrated.
+    covariance_scale: Option<f64>,
     time_bins: TimeBins,
 }
 
@@ -778,6 +810,7 @@ fn run_seed(
         predict_seconds,
         frames,
         states: model.n_states(),
+        covariance_scale: fit_summary.covariance_calibration.as_ref().map(|c| c.scale),
         chosen: fit_summary.chosen,
         time_bins: by_time,
     })
@@ -888,6 +921,27 @@ pub fn evaluate_action(
                 predict_us_per_frame: 1e6 * ok.iter().fold(0.0, |a, r| a + r.predict_seconds)
                     / frames.max(1) as f64,
                 states: ok.first().map_or(0, |r| r.states),
+                per_seed_coverage: per_seed
+                    .iter()
+                    .map(|r| {
+                        r.as_ref()
+                            .ok()
+                            .map(|x| x.coverage)
+                            .filter(|v| v.is_finite())
+                    })
+                    .collect(),
+                per_seed_nlpd: per_seed
+                    .iter()
+                    .map(|r| r.as_ref().ok().map(|x| x.nlpd).filter(|v| v.is_finite()))
+                    .collect(),
+                per_seed_covariance_scale: if ok.iter().any(|r| r.covariance_scale.is_some()) {
+                    per_seed
+                        .iter()
+                        .map(|r| r.as_ref().ok().and_then(|x| x.covariance_scale))
+                        .collect()
+                } else {
+                    Vec::new()
+                },
                 per_seed_chosen: if ok.iter().any(|r| r.chosen.is_some()) {
                     per_seed
                         .iter()

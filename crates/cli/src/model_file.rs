@@ -19,7 +19,7 @@ use crate::data::{FeatureSpec, Layout};
 use crate::error::{CliError, Result};
 use crate::file_header::{check_header, FileKind};
 use phasekit_emission::Frames;
-use phasekit_tsc::{FitSummary, Method, Model, Roles, StateMoments};
+use phasekit_tsc::{Calibration, FitSummary, Method, Model, Roles, StateMoments};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -28,56 +28,64 @@ pub const FORMAT: &str = "phasekit-model";
 /// The newest model file version this build writes and reads.
 ///
 /// * 1: HMM, TSC-HMM, GMM and gmm-tsc models;
-/// * 2: adds the `hsmm` model (a left-right HSMM, HSMM-GMR).
+/// * 2: adds the `hsmm` model (a left-right HSMM, HSMM-GMR);
+/// * 3: `auto`'s covariance calibrated by left-out demonstrations (its rule
+///   written by name, `"calibration": "demonstrations"`, which version-2
+///   readers, who know it as a flag, cannot read) and the regularisation
+///   relative to the positions (`"reg_units": "positions"`).
 ///
 /// A file is written with the lowest version that describes its model
 /// ([`version_for`]), so a model an older phasekit can use stays readable by
 /// it; this build reads every version from 1 to [`VERSION`].
-pub const VERSION: u64 = 2;
+pub const VERSION: u64 = 3;
 
 /// The lowest model-file version that describes `model` fitted by `method`
-/// (see [`VERSION`]): 2 for what version-1 readers do not know — an HSMM, a
-/// mixture (`gmm`, `gmm-tsc`) whose components are not Gaussians, or a method
-/// whose settings hold such a choice (an `auto` grid with HSMM candidates), a
-/// regularisation relative to the features' variances (`reg_units`), or a
-/// calibrated predictive covariance (`auto`).
+/// (see [`VERSION`]): 3 for what version-2 readers do not know — a
+/// regularisation relative to the positions (`reg_units: "positions"`) or a
+/// covariance calibrated by left-out demonstrations; 2 for what version-1
+/// readers do not know — an HSMM, a mixture (`gmm`, `gmm-tsc`) whose
+/// components are not Gaussians, or a method whose settings hold such a choice
+/// (an `auto` grid with HSMM candidates), a regularisation relative to the
+/// features' variances (`reg_units`), or a calibrated predictive covariance
+/// (`auto`).
 pub fn version_for(model: &Model, method: &Method) -> u64 {
     let model_needs_2 = match model {
         Model::Hsmm(_) => true,
         Model::Gmm(g) | Model::GmmTsc { mixture: g, .. } => g.components().as_gaussian().is_none(),
         Model::Hmm(_) | Model::TscHmm { .. } => false,
     };
-    if model_needs_2 || method_needs_version_2(method) {
-        2
-    } else {
-        1
-    }
+    method_version(method).max(if model_needs_2 { 2 } else { 1 })
 }
 
-/// Whether `method`'s settings hold something version-1 readers do not know.
-fn method_needs_version_2(method: &Method) -> bool {
-    // A relative regularisation (`reg_units: "relative"`) would be read as
-    // absolute by a version-1 reader: a different model.
-    if matches!(
-        method.regularisation(),
-        Some((_, phasekit_tsc::RegUnits::Relative, _))
-    ) {
-        return true;
-    }
-    match method {
-        Method::Hsmm(_) => true,
-        Method::Gmm(s) | Method::GmmTsc { gmm: s, .. } => !s.emission().is_default(),
+/// The lowest version whose readers know everything `method`'s settings hold.
+fn method_version(method: &Method) -> u64 {
+    let own = match method.regularisation() {
+        // A relative regularisation would be read as absolute by a version-1
+        // reader (a different model); version-2 readers do not know `positions`.
+        Some((_, phasekit_tsc::RegUnits::Positions, _)) => 3,
+        Some((_, phasekit_tsc::RegUnits::Relative, _)) => 2,
+        _ => 1,
+    };
+    let kind = match method {
+        Method::Hsmm(_) => 2,
+        Method::Gmm(s) | Method::GmmTsc { gmm: s, .. } if !s.emission().is_default() => 2,
         // A calibrated covariance (`auto`) would be ignored by a version-1
-        // reader: the same mean with other bands.
-        Method::CrossValidated(cv) => {
-            cv.calibration()
-                || cv
-                    .candidates()
-                    .iter()
-                    .any(|(_, m)| method_needs_version_2(m))
-        }
-        _ => false,
-    }
+        // reader (the same mean with other bands); version-2 readers know the
+        // calibration as a flag, not the rule by name.
+        Method::CrossValidated(cv) => cv
+            .candidates()
+            .iter()
+            .map(|(_, m)| method_version(m))
+            .chain([match cv.calibration() {
+                Calibration::Off => 1,
+                Calibration::Frames => 2,
+                Calibration::Demonstrations => 3,
+            }])
+            .max()
+            .unwrap_or(1),
+        _ => 1,
+    };
+    own.max(kind)
 }
 
 /// Z-scoring of the features: `z = (x − mean) / std`, per feature.
@@ -364,7 +372,9 @@ impl ModelFile {
     pub fn validate(&self) -> Result<()> {
         if self.version < version_for(&self.model, &self.method.settings) {
             return Err(CliError::new(format!(
-                "version {} does not describe its model (an hsmm model needs version {} or later)",
+                "version {} does not describe its model and settings (they need version {} or later: \
+                 an hsmm model, non-Gaussian mixtures or a relative regularisation 2, a covariance \
+                 calibrated by left-out demonstrations 3)",
                 self.version,
                 version_for(&self.model, &self.method.settings)
             )));

@@ -17,6 +17,7 @@ mod novelty;
 mod outputs;
 mod protocol;
 mod recognition_cli;
+mod reg_positions_cli;
 mod reg_units_cli;
 mod reports;
 mod robustness;

@@ -184,9 +184,10 @@ fn predict_applies_autos_calibration_to_the_covariance_only() {
         .all(|r| r["coverage"].as_f64().is_some()));
     let file = std::fs::read_to_string(&on).unwrap();
     assert!(file.contains("\"covariance_calibration\""));
-    // A version-1 reader would ignore the factor: the file says version 2.
+    // A version-1 reader would ignore the factor, and a version-2 reader
+    // does not know the rule by name (`demonstrations`): the file says version 3.
     let v: serde_json::Value = serde_json::from_str(&file).unwrap();
-    assert_eq!(v["version"], 2);
+    assert_eq!(v["version"], 3);
 
     let test = std::fs::read_dir(&data)
         .unwrap()

@@ -225,6 +225,21 @@ pub fn score_gaussian(
 /// `(0, 1)`, or a quantile of zero (every frame predicted exactly: no scale
 /// can be inferred).
 pub fn coverage_scale(mahalanobis2: &[f64], p: usize, level: f64) -> Result<f64> {
+    check_distances(mahalanobis2)?;
+    let limit = chi_squared_quantile(level, p)?;
+    let mut sorted = mahalanobis2.to_vec();
+    sorted.sort_by(f64::total_cmp);
+    let q = order_statistic(&sorted, level);
+    if q <= 0.0 {
+        return Err(GmrError::InvalidDims(
+            "coverage calibration: the quantile of the squared distances is zero".into(),
+        ));
+    }
+    Ok(q / limit)
+}
+
+/// Errors unless there is a distance and every one is finite and `≥ 0`.
+fn check_distances(mahalanobis2: &[f64]) -> Result<()> {
     if mahalanobis2.is_empty() {
         return Err(GmrError::InvalidDims(
             "coverage calibration: no frame to calibrate on".into(),
@@ -235,17 +250,78 @@ pub fn coverage_scale(mahalanobis2: &[f64], p: usize, level: f64) -> Result<f64>
             "coverage calibration: a squared Mahalanobis distance is {v}"
         )));
     }
-    let limit = chi_squared_quantile(level, p)?;
-    let mut sorted = mahalanobis2.to_vec();
-    sorted.sort_by(f64::total_cmp);
-    let k = ((level * sorted.len() as f64).ceil() as usize).clamp(1, sorted.len());
-    let q = sorted[k - 1];
-    if q <= 0.0 {
+    Ok(())
+}
+
+/// The `⌈q · n⌉`-th smallest of `sorted` (ascending, non-empty): the empirical
+/// `q` quantile that [`coverage_scale`] uses.
+fn order_statistic(sorted: &[f64], q: f64) -> f64 {
+    let k = ((q * sorted.len() as f64).ceil() as usize).clamp(1, sorted.len());
+    sorted[k - 1]
+}
+
+/// How much to widen a calibration fitted on frames pooled over
+/// demonstrations ([`coverage_scale`]) so that it covers a *new
+/// demonstration*'s frames at `level`, estimated by leaving one demonstration
+/// out at a time: with the held-out frames' squared Mahalanobis distances
+/// grouped by demonstration (`groups[d]`, the frames of demonstration `d`)
+/// and `Q_{−d}` the empirical `level` quantile of every other demonstration's
+/// distances (the threshold a calibration without `d` would set),
+///
+/// `λ = max(1, Q_level({ m²_{d,t} / Q_{−d} }_{d,t}))`,
+///
+/// the smallest factor by which those left-out thresholds must be multiplied
+/// for a share `level` of all the frames to fall below their own
+/// demonstration's threshold (`Σ_d #{t : m²_{d,t} ≤ λ Q_{−d}} ≥ level · n`).
+/// The calibrated factor is then `λ · c`, `c` from [`coverage_scale`] on all
+/// the frames.
+///
+/// Why: frames of one demonstration are not independent draws. Their errors
+/// share the demonstration's own offsets and timing, so the pooled `level`
+/// quantile, fitted on the very demonstrations it is judged on, covers a new
+/// demonstration less often than `level` — the fewer and the more unlike one
+/// another the demonstrations, the less. Leaving each one out measures that
+/// shortfall on the training demonstrations alone; `λ = 1` when the
+/// demonstrations agree (never below: the pooled factor is the least a
+/// calibration on these frames can claim).
+///
+/// Errors with fewer than two non-empty groups (nothing to leave out), a
+/// distance that is not finite and `≥ 0`, `level` outside `(0, 1)`, or a
+/// left-out quantile of zero.
+pub fn demonstration_inflation(groups: &[&[f64]], level: f64) -> Result<f64> {
+    if !(level > 0.0 && level < 1.0) {
+        return Err(GmrError::InvalidDims(format!(
+            "coverage calibration: the level must lie in (0, 1), got {level}"
+        )));
+    }
+    let groups: Vec<&[f64]> = groups.iter().copied().filter(|g| !g.is_empty()).collect();
+    if groups.len() < 2 {
         return Err(GmrError::InvalidDims(
-            "coverage calibration: the quantile of the squared distances is zero".into(),
+            "coverage calibration: leaving one demonstration out needs at least two".into(),
         ));
     }
-    Ok(q / limit)
+    for g in &groups {
+        check_distances(g)?;
+    }
+    let mut ratios: Vec<f64> = Vec::with_capacity(groups.iter().map(|g| g.len()).sum());
+    for d in 0..groups.len() {
+        let mut others: Vec<f64> = groups
+            .iter()
+            .enumerate()
+            .filter(|(e, _)| *e != d)
+            .flat_map(|(_, g)| g.iter().copied())
+            .collect();
+        others.sort_by(f64::total_cmp);
+        let threshold = order_statistic(&others, level);
+        if threshold <= 0.0 {
+            return Err(GmrError::InvalidDims(format!(
+                "coverage calibration: without demonstration {d} the quantile of the squared distances is zero"
+            )));
+        }
+        ratios.extend(groups[d].iter().map(|v| v / threshold));
+    }
+    ratios.sort_by(f64::total_cmp);
+    Ok(order_statistic(&ratios, level).max(1.0))
 }
 
 /// The mean negative log predictive density after multiplying the covariance

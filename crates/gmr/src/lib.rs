@@ -72,8 +72,8 @@ pub mod hsmm;
 pub mod regression;
 
 pub use calibration::{
-    chi_squared_cdf, chi_squared_quantile, covariance_block, coverage_scale, nlpd_scaled,
-    score_gaussian, GaussianScore, COVERAGE_LEVEL,
+    chi_squared_cdf, chi_squared_quantile, covariance_block, coverage_scale,
+    demonstration_inflation, nlpd_scaled, score_gaussian, GaussianScore, COVERAGE_LEVEL,
 };
 pub use conditional::{check_io, Conditional};
 pub use error::{GmrError, Result};

@@ -20,16 +20,19 @@
 //! [`DEFAULT_GRID`] or [`SMALL_GRID`], and its family is its preset's name.
 //!
 //! **Calibrated uncertainty.** The winner's predictive covariance is then
-//! multiplied by the factor that makes 95 % of its held-out frames fall inside
-//! its 95 % regions (on the folds, training demonstrations only; see
-//! [`crate::cross_validation`]): the bands are the data's, not the
-//! regulariser's. The factor and the coverage/NLPD before and after are in the
-//! summary ([`crate::FitSummary::covariance_calibration`]).
+//! multiplied by the factor that makes 95 % of the frames of a demonstration
+//! it has not seen fall inside its 95 % regions, estimated on the folds'
+//! held-out frames by leaving each held-out demonstration out of the
+//! calibration in turn (training demonstrations only; see
+//! [`crate::cross_validation`] and [`Calibration`]): the bands are the data's,
+//! not the regulariser's. The factor and the coverage/NLPD before and after
+//! are in the summary ([`crate::FitSummary::covariance_calibration`]).
 //!
 //! Keys (`auto:key=value`, [`AutoSettings::set`]): `grid=small|default|relative`,
 //! `folds=K` (`K ≥ 2`, clamped to the number of demonstrations),
 //! `families=hmm+tsc-hmm` (a `+`-separated subset of the grid's families),
-//! `halving=on|off`, `calibrate=on|off` (on by default).
+//! `halving=on|off`, `calibrate=on|demonstrations|frames|off` (`on` =
+//! `demonstrations`, the default; `frames` pools the held-out frames).
 //!
 //! Not done: warm starts across folds (an HMM fitted on folds `A ∪ B` started
 //! from the one fitted on `A` is a different fit, so the choice would depend
@@ -38,7 +41,7 @@
 use crate::cross_validation::Halving;
 use crate::emission_choice::EmissionKind;
 use crate::error::{Result, TscError};
-use crate::method::{CrossValidation, Method};
+use crate::method::{Calibration, CrossValidation, Method};
 use crate::preset::{Preset, PresetOptions, PresetOptionsBuilder};
 use crate::reg_units::RegUnits;
 use serde::{Deserialize, Serialize};
@@ -104,6 +107,72 @@ pub const RELATIVE_GRID: &[&str] = &[
     "gmm:states=10,reg-rel=0.03,emission=student-t",
 ];
 
+/// The default grid in units of the positions: every candidate's `reg` a
+/// fraction of each feature's position's variance (`reg-pos`,
+/// [`RegUnits::Positions`]: a velocity regularised by as much as its
+/// position, as the paper's absolute `reg` does on data in one unit), 0.3,
+/// 0.1 and 0.03 where the default grid has 1e-2, 3e-3 and 1e-3 m². The same
+/// choice, the same predictions, whatever the unit of each feature.
+pub const POSITIONS_GRID: &[&str] = &[
+    "hmm:states=5,reg-pos=0.3",
+    "hmm:states=5,reg-pos=0.03",
+    "hmm:states=7,reg-pos=0.3",
+    "hmm:states=7,reg-pos=0.1",
+    "hmm:states=7,reg-pos=0.03",
+    "hmm:states=10,reg-pos=0.3",
+    "hmm:states=10,reg-pos=0.1",
+    "hmm:states=10,reg-pos=0.03",
+    "hmm:states=13,reg-pos=0.03",
+    "hmm:states=7,reg-pos=0.03,emission=student-t",
+    "tsc-hmm:states=4,reg-pos=0.3",
+    "tsc-hmm:states=4,reg-pos=0.03",
+    "tsc-hmm:states=7,reg-pos=0.3",
+    "tsc-hmm:states=7,reg-pos=0.03",
+    "tsc-hmm:states=4,reg-pos=0.03,emission=student-t",
+    "hsmm:states=4,reg-pos=0.3",
+    "hsmm:states=4,reg-pos=0.03",
+    "gmm:states=5,reg-pos=0.3",
+    "gmm:states=10,reg-pos=0.3",
+    "gmm:states=10,reg-pos=0.03",
+    "gmm:states=15,reg-pos=0.03",
+    "gmm:states=5,reg-pos=0.3,emission=student-t",
+    "gmm:states=10,reg-pos=0.03,emission=student-t",
+];
+
+/// [`POSITIONS_GRID`] and six candidates that keep the velocities
+/// (`reg-rel`: a fraction of each feature's own variance), unit-free too.
+pub const MIXED_GRID: &[&str] = &[
+    "hmm:states=5,reg-pos=0.3",
+    "hmm:states=5,reg-pos=0.03",
+    "hmm:states=7,reg-pos=0.3",
+    "hmm:states=7,reg-pos=0.1",
+    "hmm:states=7,reg-pos=0.03",
+    "hmm:states=10,reg-pos=0.3",
+    "hmm:states=10,reg-pos=0.1",
+    "hmm:states=10,reg-pos=0.03",
+    "hmm:states=13,reg-pos=0.03",
+    "hmm:states=7,reg-pos=0.03,emission=student-t",
+    "tsc-hmm:states=4,reg-pos=0.3",
+    "tsc-hmm:states=4,reg-pos=0.03",
+    "tsc-hmm:states=7,reg-pos=0.3",
+    "tsc-hmm:states=7,reg-pos=0.03",
+    "tsc-hmm:states=4,reg-pos=0.03,emission=student-t",
+    "hsmm:states=4,reg-pos=0.3",
+    "hsmm:states=4,reg-pos=0.03",
+    "gmm:states=5,reg-pos=0.3",
+    "gmm:states=10,reg-pos=0.3",
+    "gmm:states=10,reg-pos=0.03",
+    "gmm:states=15,reg-pos=0.03",
+    "gmm:states=5,reg-pos=0.3,emission=student-t",
+    "gmm:states=10,reg-pos=0.03,emission=student-t",
+    "hmm:states=7,reg-rel=0.1",
+    "hmm:states=10,reg-rel=0.1",
+    "tsc-hmm:states=4,reg-rel=0.1",
+    "hsmm:states=4,reg-rel=0.03",
+    "hsmm:states=4,reg-rel=0.1",
+    "gmm:states=10,reg-rel=0.1",
+];
+
 /// The small grid: 9 candidates, every family with its most useful settings.
 pub const SMALL_GRID: &[&str] = &[
     "hmm:states=5,reg=1e-2",
@@ -128,6 +197,10 @@ pub enum Grid {
     Default,
     /// [`RELATIVE_GRID`].
     Relative,
+    /// [`POSITIONS_GRID`].
+    Positions,
+    /// [`MIXED_GRID`].
+    Mixed,
 }
 
 impl Grid {
@@ -137,6 +210,8 @@ impl Grid {
             Grid::Small => SMALL_GRID,
             Grid::Default => DEFAULT_GRID,
             Grid::Relative => RELATIVE_GRID,
+            Grid::Positions => POSITIONS_GRID,
+            Grid::Mixed => MIXED_GRID,
         }
     }
 }
@@ -147,6 +222,8 @@ impl fmt::Display for Grid {
             Grid::Small => "small",
             Grid::Default => "default",
             Grid::Relative => "relative",
+            Grid::Positions => "positions",
+            Grid::Mixed => "mixed",
         })
     }
 }
@@ -158,9 +235,13 @@ impl FromStr for Grid {
             "small" => Ok(Grid::Small),
             "default" => Ok(Grid::Default),
             "relative" => Ok(Grid::Relative),
+            "positions" => Ok(Grid::Positions),
+            "mixed" => Ok(Grid::Mixed),
             _ => Err(TscError::InvalidSetting {
                 name: "grid",
-                reason: format!("unknown grid `{s}`; known: small, default, relative"),
+                reason: format!(
+                    "unknown grid `{s}`; known: small, default, relative, positions, mixed"
+                ),
             }),
         }
     }
@@ -173,25 +254,28 @@ pub struct AutoSettings {
     folds: usize,
     families: Option<Vec<String>>,
     halving: bool,
-    /// Settings written before calibration existed read as on: their model
-    /// files carry no calibration, so they predict as they did.
-    #[serde(default = "on")]
-    calibrate: bool,
+    /// Settings written before calibration existed read as the default rule:
+    /// their model files carry no calibration, so they predict as they did;
+    /// those written when it was a flag read `true` as the rule of the time,
+    /// [`Calibration::Frames`].
+    #[serde(default = "default_calibration")]
+    calibrate: Calibration,
 }
 
-fn on() -> bool {
-    true
+fn default_calibration() -> Calibration {
+    Calibration::Demonstrations
 }
 
 impl Default for AutoSettings {
-    /// The default grid, 5 folds, every family, halving on, calibration on.
+    /// The default grid, 5 folds, every family, halving on, calibration by
+    /// left-out demonstrations.
     fn default() -> Self {
         AutoSettings {
             grid: Grid::Default,
             folds: 5,
             families: None,
             halving: true,
-            calibrate: true,
+            calibrate: Calibration::Demonstrations,
         }
     }
 }
@@ -221,9 +305,10 @@ impl AutoSettingsBuilder {
         self.0.halving = on;
         self
     }
-    /// Calibrate the winner's predictive covariance on the folds (on by default).
-    pub fn calibrate(mut self, on: bool) -> Self {
-        self.0.calibrate = on;
+    /// How the winner's predictive covariance is calibrated on the folds
+    /// ([`Calibration::Demonstrations`] by default).
+    pub fn calibrate(mut self, rule: Calibration) -> Self {
+        self.0.calibrate = rule;
         self
     }
     /// Validates the settings: at least 2 folds, every family one of the grid's.
@@ -297,8 +382,8 @@ impl AutoSettings {
     pub fn halving(&self) -> bool {
         self.halving
     }
-    /// Whether the winner's predictive covariance is calibrated on the folds.
-    pub fn calibrates(&self) -> bool {
+    /// How the winner's predictive covariance is calibrated on the folds.
+    pub fn calibration(&self) -> Calibration {
         self.calibrate
     }
 
@@ -325,12 +410,15 @@ impl AutoSettings {
                 _ => return Err(bad("halving", format!("expected on or off, got `{value}`"))),
             },
             "calibrate" => match value {
-                "on" => b.calibrate(true),
-                "off" => b.calibrate(false),
+                "on" | "demonstrations" => b.calibrate(Calibration::Demonstrations),
+                "frames" => b.calibrate(Calibration::Frames),
+                "off" => b.calibrate(Calibration::Off),
                 _ => {
                     return Err(bad(
                         "calibrate",
-                        format!("expected on or off, got `{value}`"),
+                        format!(
+                            "expected on (= demonstrations), demonstrations, frames or off, got `{value}`"
+                        ),
                     ))
                 }
             },
@@ -381,7 +469,8 @@ impl AutoSettings {
 
 /// The method of a specification `NAME[:key=value,...]` on top of `base`.
 /// Keys: `states`, `tsc-states`, `window`, `reg`, `reg-units`
-/// (`absolute`|`relative`), `reg-rel` (`reg-rel=R` is `reg=R,reg-units=relative`),
+/// (`absolute`|`relative`|`positions`), `reg-rel` (`reg-rel=R` is
+/// `reg=R,reg-units=relative`), `reg-pos` (`reg=R,reg-units=positions`),
 /// `emission`, `max-iter`, `restarts`. `reg=` sets the amount only: its unit is
 /// `base`'s (`auto:reg-units=relative` makes every candidate's `reg` relative).
 pub fn method_of_spec(spec: &str, base: &PresetOptions) -> Result<Method> {
@@ -419,6 +508,9 @@ fn apply_setting(
         "reg-rel" => o
             .reg(v.parse::<f64>().map_err(|e| e.to_string())?)
             .reg_units(RegUnits::Relative),
+        "reg-pos" => o
+            .reg(v.parse::<f64>().map_err(|e| e.to_string())?)
+            .reg_units(RegUnits::Positions),
         "emission" => o.emission(v.parse::<EmissionKind>().map_err(|e| e.to_string())?),
         other => return Err(format!("unknown key `{other}`")),
     })

@@ -16,10 +16,15 @@
 //! and log density, hence each candidate's cross-validated coverage of the
 //! 95 % region and NLPD ([`CvRow::coverage`], [`CvRow::nlpd`]). With
 //! [`CrossValidation::with_calibration`] the winner's predictive covariance is
-//! then multiplied by the factor that makes its held-out frames' coverage
-//! 95 % ([`phasekit_gmr::coverage_scale`]; [`CovarianceCalibration`]): a
-//! regulariser's `(10 cm)²` bands shrink, over-confident ones widen, the mean
-//! is unchanged, and no test frame is used.
+//! then multiplied by a factor fitted on those frames ([`CovarianceCalibration`]):
+//! with [`Calibration::Frames`] the one that makes their pooled coverage 95 %
+//! ([`phasekit_gmr::coverage_scale`]); with [`Calibration::Demonstrations`]
+//! that one widened until each held-out demonstration, judged by a threshold
+//! fitted on the others alone, is covered at 95 % over all
+//! ([`phasekit_gmr::demonstration_inflation`]), since a new demonstration is
+//! what the calibration must transfer to and its frames' errors are not
+//! independent. A regulariser's `(10 cm)²` bands shrink, over-confident ones
+//! widen, the mean is unchanged, and no test frame is used.
 //!
 //! **Folds.** Demonstration `k` is held out by fold `k mod K`, or, with a fold
 //! seed, the demonstrations are first shuffled by `ChaCha8Rng::seed_from_u64(seed)`
@@ -42,14 +47,15 @@
 
 use crate::detect::select;
 use crate::error::{Result, TscError};
-use crate::method::{CrossValidation, Method};
+use crate::method::{Calibration, CrossValidation, Method};
 use crate::model::Model;
 use crate::roles::Roles;
 use crate::summary::{CovarianceCalibration, FitSummary};
 use phasekit_emission::{Frames, SequenceSet};
 pub use phasekit_gmr::COVERAGE_LEVEL;
 use phasekit_gmr::{
-    chi_squared_quantile, covariance_block, coverage_scale, nlpd_scaled, score_gaussian,
+    chi_squared_quantile, covariance_block, coverage_scale, demonstration_inflation, nlpd_scaled,
+    score_gaussian,
 };
 use rand::seq::SliceRandom;
 use rand::SeedableRng;
@@ -259,11 +265,11 @@ struct FoldOutcome {
     frames: usize,
     /// Seconds of fitting and predicting.
     seconds: f64,
-    /// Per scorable frame, `m²` of its scored dims under the predictive
-    /// covariance, and the sum of their log densities; `None` when a
-    /// covariance could not be scored (calibration is best effort: the error
-    /// still counts).
-    calibration: Option<(Vec<f64>, f64)>,
+    /// Per held-out demonstration, per scorable frame, `m²` of its scored
+    /// dims under the predictive covariance; and the sum of their log
+    /// densities. `None` when a covariance could not be scored (calibration is
+    /// best effort: the error still counts).
+    calibration: Option<(Vec<Vec<f64>>, f64)>,
 }
 
 type FoldScore = Result<FoldOutcome>;
@@ -302,6 +308,9 @@ fn score_fold(
         (vec![0.0; p], vec![0.0; p * p], vec![0.0; p * (p + 1)]);
     let mut calibration = Some((Vec::new(), 0.0));
     for &k in &held {
+        if let Some((m2, _)) = calibration.as_mut() {
+            m2.push(Vec::new());
+        }
         let seq = data.get(k);
         let human = select(seq, roles.human());
         let input = Frames::new(&human, roles.human().len()).map_err(|e| in_fold(e.into()))?;
@@ -323,7 +332,9 @@ fn score_fold(
                 covariance_block(&cov[t * o * o..(t + 1) * o * o], o, &outputs, &mut block);
                 match score_gaussian(&residual, &block, &mut scratch) {
                     Ok(s) => {
-                        m2.push(s.mahalanobis2);
+                        if let Some(demonstration) = m2.last_mut() {
+                            demonstration.push(s.mahalanobis2);
+                        }
                         *log_density += s.log_density;
                     }
                     Err(_) => calibration = None,
@@ -422,16 +433,21 @@ fn score_candidates(
                 .map(|x| x.calibration.as_ref())
                 .collect::<Option<Vec<_>>>()
                 .map(|parts| {
-                    let m2: Vec<f64> = parts.iter().flat_map(|(m, _)| m.iter().copied()).collect();
+                    let groups: Vec<Vec<f64>> =
+                        parts.iter().flat_map(|(m, _)| m.iter().cloned()).collect();
                     let log_density: f64 = parts.iter().map(|(_, l)| l).sum();
-                    (m2, log_density)
+                    (groups, log_density)
                 })
-                .filter(|(m2, _)| !m2.is_empty() && fail.is_none());
+                .filter(|(groups, _)| groups.iter().any(|g| !g.is_empty()) && fail.is_none());
             let (coverage, nlpd) = match (&pooled_calibration, &limit) {
-                (Some((m2, log_density)), Ok(limit)) => (
-                    Some(m2.iter().filter(|&&v| v <= *limit).count() as f64 / m2.len() as f64),
-                    Some(-log_density / m2.len() as f64),
-                ),
+                (Some((groups, log_density)), Ok(limit)) => {
+                    let n: usize = groups.iter().map(Vec::len).sum();
+                    let inside = groups.iter().flatten().filter(|&&v| v <= *limit).count();
+                    (
+                        Some(inside as f64 / n as f64),
+                        Some(-log_density / n as f64),
+                    )
+                }
                 _ => (None, None),
             };
             CvRowScored {
@@ -454,11 +470,12 @@ fn score_candidates(
 }
 
 /// A row, its error kept as a [`TscError`], and the squared Mahalanobis
-/// distances of its held-out frames (when every fold scored could be).
+/// distances of its held-out frames grouped by demonstration (when every fold
+/// scored could be).
 struct CvRowScored {
     row: CvRow,
     scored: Scored,
-    mahalanobis2: Option<Vec<f64>>,
+    mahalanobis2: Option<Vec<Vec<f64>>>,
 }
 
 /// Pooled squared error per frame of the folds scored (NaN when no frame was).
@@ -502,26 +519,40 @@ pub fn winner(table: &[CvRow]) -> Option<usize> {
 }
 
 /// The calibration of the winner's predictive covariance from its held-out
-/// frames' squared Mahalanobis distances (see the module's docs); `None` when
-/// they could not all be scored (the winner then predicts uncalibrated, as it
-/// would without calibration; its row's coverage is `None` too).
+/// frames' squared Mahalanobis distances, grouped by demonstration, by `rule`
+/// (see the module's docs); `None` when they could not all be scored (the
+/// winner then predicts uncalibrated, as it would without calibration; its
+/// row's coverage is `None` too) or the rule is [`Calibration::Off`].
 fn calibrate(
+    rule: Calibration,
     row: &CvRow,
-    mahalanobis2: Option<&[f64]>,
+    mahalanobis2: Option<&[Vec<f64>]>,
     roles: &Roles,
 ) -> Result<Option<CovarianceCalibration>> {
-    let (Some(m2), Some(coverage), Some(nlpd)) = (mahalanobis2, row.coverage, row.nlpd) else {
+    let (Some(groups), Some(coverage), Some(nlpd)) = (mahalanobis2, row.coverage, row.nlpd) else {
         return Ok(None);
+    };
+    let m2: Vec<f64> = groups.iter().flatten().copied().collect();
+    let demonstration_inflation = match rule {
+        Calibration::Off => return Ok(None),
+        Calibration::Frames => 1.0,
+        Calibration::Demonstrations => {
+            let groups: Vec<&[f64]> = groups.iter().map(Vec::as_slice).collect();
+            // One held-out demonstration has nothing to be left out of: pooled.
+            demonstration_inflation(&groups, COVERAGE_LEVEL).unwrap_or(1.0)
+        }
     };
     let p = roles.scored().len();
-    let Ok(scale) = coverage_scale(m2, p, COVERAGE_LEVEL) else {
+    let Ok(scale) = coverage_scale(&m2, p, COVERAGE_LEVEL) else {
         return Ok(None);
     };
+    let scale = scale * demonstration_inflation;
     let limit = chi_squared_quantile(COVERAGE_LEVEL, p)?;
     let mean_m2 = m2.iter().sum::<f64>() / m2.len() as f64;
     Ok(Some(CovarianceCalibration {
         scale,
         level: COVERAGE_LEVEL,
+        demonstration_inflation,
         frames: m2.len(),
         coverage_before: coverage,
         coverage_after: m2.iter().filter(|&&v| v / scale <= limit).count() as f64 / m2.len() as f64,
@@ -562,10 +593,12 @@ pub fn fit_cross_validated(
         });
     };
     let (model, mut summary) = candidates[best].1.fit(data, roles)?;
-    if cv.calibration() {
-        summary.covariance_calibration =
-            calibrate(&table[best], scored[best].mahalanobis2.as_deref(), roles)?;
-    }
+    summary.covariance_calibration = calibrate(
+        cv.calibration(),
+        &table[best],
+        scored[best].mahalanobis2.as_deref(),
+        roles,
+    )?;
     summary.fit_seconds = clock.elapsed().as_secs_f64();
     summary.chosen = Some(candidates[best].0.clone());
     for row in &table {

@@ -100,13 +100,13 @@ pub use hsmm_gmr::{DurationFamily, HsmmSettings, HsmmSettingsBuilder};
 pub use krishnan::{
     KrishnanReport, KrishnanSettings, KrishnanSettingsBuilder, KrishnanTsc, TimeClustering,
 };
-pub use method::{CrossValidation, GmmSettings, GmmSettingsBuilder, Method};
+pub use method::{Calibration, CrossValidation, GmmSettings, GmmSettingsBuilder, Method};
 pub use model::Model;
 pub use predictor::{human_frames, OnlinePredictor, Predictor};
 pub use preset::{
     Preset, PresetOptions, PresetOptionsBuilder, AUTO_MIN_STATES, DEFAULT_COMPOSITION,
 };
-pub use reg_units::{feature_variances, scale_data, scale_model, RegUnits};
+pub use reg_units::{feature_variances, position_scales, scale_data, scale_model, RegUnits};
 pub use roles::Roles;
 pub use segmentation::Segmentation;
 pub use select::{AutoCount, GMeansStates, Selector};

@@ -7,7 +7,7 @@ use crate::hmm_settings::HmmSettings;
 use crate::hsmm_gmr::HsmmSettings;
 use crate::krishnan::KrishnanSettings;
 use crate::model::Model;
-use crate::reg_units::{feature_variances, scale_data, scale_model, RegUnits};
+use crate::reg_units::{feature_variances, position_scales, scale_data, scale_model, RegUnits};
 use crate::roles::Roles;
 use crate::summary::FitSummary;
 use crate::tsc_hmm::{TscHmm, TscSettings};
@@ -18,6 +18,7 @@ use phasekit_gmm::{Em, Gmm};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
+use std::fmt;
 
 /// Settings of a static GMM (the `gmm` preset and the base of `gmm-tsc`),
 /// validated once by [`GmmSettingsBuilder::build`] (and on deserialisation).
@@ -213,6 +214,87 @@ impl GmmSettings {
     }
 }
 
+/// How a cross-validated choice calibrates the winner's predictive covariance
+/// on the held-out frames of its folds ([`crate::cross_validation`]).
+///
+/// Serialised as `false`, `true` and `"demonstrations"`: the first two are
+/// what files wrote when calibration was a flag (and the rule was
+/// [`Calibration::Frames`]), so that those files and their readers keep their
+/// meaning; `"off"` and `"frames"` are read too.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize)]
+#[serde(from = "CalibrationRaw")]
+pub enum Calibration {
+    /// The predictive covariance as the model gives it.
+    #[default]
+    Off,
+    /// The factor that makes 95 % of the held-out frames, pooled, fall inside
+    /// their 95 % regions ([`phasekit_gmr::coverage_scale`]).
+    Frames,
+    /// The factor that makes 95 % of the frames of a *left-out
+    /// demonstration* fall inside: the [`Calibration::Frames`] factor widened
+    /// by what leaving each held-out demonstration out of the calibration in
+    /// turn shows it lacks ([`phasekit_gmr::demonstration_inflation`]; never
+    /// narrower).
+    Demonstrations,
+}
+
+impl Calibration {
+    /// No calibration (not written in files).
+    pub fn is_off(&self) -> bool {
+        *self == Calibration::Off
+    }
+}
+
+/// What a file may hold for [`Calibration`]: the rule, or the flag of older files.
+#[derive(Deserialize)]
+#[serde(untagged)]
+enum CalibrationRaw {
+    Flag(bool),
+    Rule(CalibrationName),
+}
+
+#[derive(Deserialize)]
+#[serde(rename_all = "lowercase")]
+enum CalibrationName {
+    Off,
+    Frames,
+    Demonstrations,
+}
+
+impl From<CalibrationRaw> for Calibration {
+    fn from(r: CalibrationRaw) -> Self {
+        match r {
+            CalibrationRaw::Flag(false) | CalibrationRaw::Rule(CalibrationName::Off) => {
+                Calibration::Off
+            }
+            CalibrationRaw::Flag(true) | CalibrationRaw::Rule(CalibrationName::Frames) => {
+                Calibration::Frames
+            }
+            CalibrationRaw::Rule(CalibrationName::Demonstrations) => Calibration::Demonstrations,
+        }
+    }
+}
+
+impl Serialize for Calibration {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> std::result::Result<S::Ok, S::Error> {
+        match self {
+            Calibration::Off => s.serialize_bool(false),
+            Calibration::Frames => s.serialize_bool(true),
+            Calibration::Demonstrations => s.serialize_str("demonstrations"),
+        }
+    }
+}
+
+impl fmt::Display for Calibration {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Calibration::Off => "off",
+            Calibration::Frames => "frames",
+            Calibration::Demonstrations => "demonstrations",
+        })
+    }
+}
+
 /// A choice among candidate methods by K-fold cross-validated prediction error
 /// ([`crate::cross_validate`]), validated at construction (and on deserialisation).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -224,8 +306,8 @@ pub struct CrossValidation {
     halving: Option<Halving>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     fold_seed: Option<u64>,
-    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
-    calibration: bool,
+    #[serde(default, skip_serializing_if = "Calibration::is_off")]
+    calibration: Calibration,
 }
 
 /// The serialised form of [`CrossValidation`], before validation.
@@ -238,7 +320,7 @@ struct CrossValidationRaw {
     #[serde(default)]
     fold_seed: Option<u64>,
     #[serde(default)]
-    calibration: bool,
+    calibration: Calibration,
 }
 
 impl TryFrom<CrossValidationRaw> for CrossValidation {
@@ -274,7 +356,7 @@ impl CrossValidation {
             folds,
             halving: None,
             fold_seed: None,
-            calibration: false,
+            calibration: Calibration::Off,
         })
     }
     /// Early abandoning of hopeless candidates by successive halving (see
@@ -289,15 +371,14 @@ impl CrossValidation {
         self.fold_seed = Some(seed);
         self
     }
-    /// Calibrate the winner's predictive covariance on its held-out frames
-    /// (see [`crate::cross_validation`]): its 95 % regions then cover 95 % of
-    /// the held-out frames of the training demonstrations.
-    pub fn with_calibration(mut self, on: bool) -> Self {
-        self.calibration = on;
+    /// Calibrate the winner's predictive covariance on its held-out frames by
+    /// this rule (see [`crate::cross_validation`] and [`Calibration`]).
+    pub fn with_calibration(mut self, rule: Calibration) -> Self {
+        self.calibration = rule;
         self
     }
-    /// Whether the winner's predictive covariance is calibrated.
-    pub fn calibration(&self) -> bool {
+    /// How the winner's predictive covariance is calibrated.
+    pub fn calibration(&self) -> Calibration {
         self.calibration
     }
     /// The rule of early abandoning, if any.
@@ -390,13 +471,17 @@ impl Method {
     /// With a relative regularisation ([`RegUnits::Relative`], `reg = R`) the
     /// method is fitted unchanged on the features divided by their standard
     /// deviations `s_j = √v_j` over `data` and mapped back to the data's units
-    /// ([`crate::reg_units`]): the regulariser is then `R · diag(v)`. The
+    /// ([`crate::reg_units`]): the regulariser is then `R · diag(v)`; with
+    /// [`RegUnits::Positions`] the factors are [`crate::reg_units::position_scales`]
+    /// (`R s_j²`: a velocity regularised by its position's variance). The
     /// summary's log-likelihoods and BIC values are those of the data's units
     /// (`log p(x) = log p(x / s) − Σ_observed log s_j`), and
     /// [`FitSummary::regularisation_per_feature`] holds `R · v_j`.
     pub fn fit(&self, data: &SequenceSet, roles: &Roles) -> Result<(Model, FitSummary)> {
         let (model, mut summary) = match self.regularisation() {
-            Some((reg, RegUnits::Relative, kind)) => self.fit_relative(data, roles, reg, kind)?,
+            Some((reg, units @ (RegUnits::Relative | RegUnits::Positions), kind)) => {
+                self.fit_relative(data, roles, reg, units, kind)?
+            }
             _ => self.fit_inner(data, roles)?,
         };
         summary.missing_values = data.all_frames().missing_count();
@@ -408,11 +493,14 @@ impl Method {
         data: &SequenceSet,
         roles: &Roles,
         reg: f64,
+        units: RegUnits,
         kind: EmissionKind,
     ) -> Result<(Model, FitSummary)> {
         roles.check(data.dim())?;
-        let v = feature_variances(data);
-        let s: Vec<f64> = v.iter().map(|v| v.sqrt()).collect();
+        let s: Vec<f64> = match units {
+            RegUnits::Positions => position_scales(data, roles),
+            _ => feature_variances(data).iter().map(|v| v.sqrt()).collect(),
+        };
         // Refuse an emission the mapping cannot return before spending the fit on it.
         kind.template(1, data.dim())?.scale_features(&s)?;
         let (model, mut summary) = self.fit_inner(&scale_data(data, &s)?, roles)?;
@@ -437,7 +525,7 @@ impl Method {
             .bic
             .iter_mut()
             .for_each(|(_, b)| *b += 2.0 * jacobian);
-        summary.regularisation_per_feature = v.iter().map(|v| reg * v).collect();
+        summary.regularisation_per_feature = s.iter().map(|s| reg * s * s).collect();
         Ok((model, summary))
     }
 

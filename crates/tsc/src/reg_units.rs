@@ -20,10 +20,24 @@
 //! skipped). A constant feature (every observed value the same) or one never
 //! observed gets `v_j = 1`, so nothing divides by zero: its regularisation is
 //! then `R` in its own units squared.
+//!
+//! [`RegUnits::Positions`] is the same with other factors ([`position_scales`]):
+//! a velocity `u_t = k (x_t − x_{t−1})` is a difference of its position, in the
+//! position's unit times `k` (`k = 1` for the command's velocities, `σ_x / σ_u`
+//! after `--standardise`), so it is regularised by the same fraction of its
+//! *position's* variance, in its own unit: `R k² v_x`. On data in one unit
+//! this is what the paper's absolute `reg` does (it regularises a velocity by
+//! as much as its position, which all but removes it from the model, as
+//! `1e-2` m² does on NuiSI), but in any unit: every factor moves with its
+//! feature's unit, so the fit is the same whatever scale each feature is given
+//! (`--standardise` included). `k` is read off the data: the least-squares
+//! slope of `u_t` on `x_t − x_{t−1}` over the frames where both are observed
+//! (exactly 1 when the velocity is the difference itself).
 
 use crate::emission_choice::AnyEmission;
 use crate::error::{Result, TscError};
 use crate::model::Model;
+use crate::roles::Roles;
 use crate::tsc_hmm::TscHmm;
 use phasekit_emission::{ScaleFeatures, SequenceSet};
 use phasekit_gmm::Gmm;
@@ -44,6 +58,11 @@ pub enum RegUnits {
     /// `reg` a fraction of every feature's variance over the training frames:
     /// `R · diag(v)` is added (see the module documentation).
     Relative,
+    /// `reg` a fraction of every feature's *position's* variance: a
+    /// position's own, a velocity's its position's in the velocity's unit
+    /// (`R k² v_x`, see the module documentation and [`position_scales`]);
+    /// [`RegUnits::Relative`] for data without velocities.
+    Positions,
 }
 
 impl RegUnits {
@@ -59,6 +78,7 @@ impl fmt::Display for RegUnits {
         f.write_str(match self {
             RegUnits::Absolute => "absolute",
             RegUnits::Relative => "relative",
+            RegUnits::Positions => "positions",
         })
     }
 }
@@ -69,9 +89,10 @@ impl FromStr for RegUnits {
         match s {
             "absolute" => Ok(RegUnits::Absolute),
             "relative" => Ok(RegUnits::Relative),
+            "positions" => Ok(RegUnits::Positions),
             _ => Err(TscError::InvalidSetting {
                 name: "reg_units",
-                reason: format!("unknown unit `{s}`; known: absolute, relative"),
+                reason: format!("unknown unit `{s}`; known: absolute, relative, positions"),
             }),
         }
     }
@@ -112,6 +133,51 @@ pub fn feature_variances(data: &SequenceSet) -> Vec<f64> {
             }
         })
         .collect()
+}
+
+/// The factors `s_j` of [`RegUnits::Positions`] (the model is fitted on
+/// `x_j / s_j` with the absolute `R`, so feature `j` is regularised by
+/// `R s_j²`): `√v_j` for every feature but a velocity (`roles.velocities()`),
+/// and `|k| √v_x` for a velocity of position `x`, `k` the least-squares slope
+/// of the velocity on the position's first difference within each sequence
+/// (frames where the velocity, the position and the position before are all
+/// observed). A velocity whose slope is not defined or not finite and
+/// positive in magnitude (no such frame, a constant position) keeps `√v_j`.
+pub fn position_scales(data: &SequenceSet, roles: &Roles) -> Vec<f64> {
+    let v = feature_variances(data);
+    let mut s: Vec<f64> = v.iter().map(|v| v.sqrt()).collect();
+    let d = data.dim();
+    for &(u, x) in roles.velocities() {
+        // Pairs (Δx, u) over consecutive observed frames, two passes.
+        let pairs = || {
+            data.iter().flat_map(move |q| {
+                let f = q.as_slice();
+                (1..f.len() / d).filter_map(move |t| {
+                    let (dx, vel) = (f[t * d + x] - f[(t - 1) * d + x], f[t * d + u]);
+                    (!dx.is_nan() && !vel.is_nan()).then_some((dx, vel))
+                })
+            })
+        };
+        let (n, sum_dx, sum_u) = pairs().fold((0usize, 0.0, 0.0), |(n, a, b), (dx, vel)| {
+            (n + 1, a + dx, b + vel)
+        });
+        if n == 0 {
+            continue;
+        }
+        let (mean_dx, mean_u) = (sum_dx / n as f64, sum_u / n as f64);
+        let (sxx, sxu) = pairs().fold((0.0, 0.0), |(a, b), (dx, vel)| {
+            (
+                a + (dx - mean_dx) * (dx - mean_dx),
+                b + (dx - mean_dx) * (vel - mean_u),
+            )
+        });
+        let k = (sxu / sxx).abs();
+        let scale = k * v[x].sqrt();
+        if k.is_finite() && scale.is_finite() && scale > 0.0 {
+            s[u] = scale;
+        }
+    }
+    s
 }
 
 /// The data with feature `j` divided by `s[j]` (missing values stay missing).

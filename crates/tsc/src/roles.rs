@@ -15,6 +15,12 @@ use serde::{Deserialize, Serialize};
 /// (`auto`, the `-cv` presets) scores and calibrates on: the command sets them
 /// to the robot's positions, which is what `evaluate` reports, so that the
 /// choice optimises the reported error and not the velocities' as well.
+///
+/// The *velocities* ([`Roles::velocities`], none unless
+/// [`Roles::with_velocities`] names them) are the dims that are first
+/// differences of other dims, each with its position's dim: the command names
+/// them for `--velocity`. A regularisation relative to the positions
+/// ([`crate::RegUnits::Positions`]) reads them.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(try_from = "RolesRaw")]
 pub struct Roles {
@@ -22,6 +28,8 @@ pub struct Roles {
     robot: Vec<usize>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     scored: Option<Vec<usize>>,
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    velocities: Vec<(usize, usize)>,
 }
 
 /// The serialised form of [`Roles`], before validation.
@@ -31,16 +39,19 @@ struct RolesRaw {
     robot: Vec<usize>,
     #[serde(default)]
     scored: Option<Vec<usize>>,
+    #[serde(default)]
+    velocities: Vec<(usize, usize)>,
 }
 
 impl TryFrom<RolesRaw> for Roles {
     type Error = TscError;
     fn try_from(r: RolesRaw) -> Result<Self> {
         let roles = Roles::new(r.human, r.robot)?;
-        match r.scored {
-            Some(s) => roles.with_scored(s),
-            None => Ok(roles),
-        }
+        let roles = match r.scored {
+            Some(s) => roles.with_scored(s)?,
+            None => roles,
+        };
+        roles.with_velocities(r.velocities)
     }
 }
 
@@ -73,7 +84,54 @@ impl Roles {
             human,
             robot,
             scored: None,
+            velocities: Vec::new(),
         })
+    }
+
+    /// Names the velocities: `(velocity, position)` pairs of frame dims, the
+    /// velocity being the first difference of the position
+    /// (`v_t = x_t − x_{t−1}`, in the same or another unit). Both of one side
+    /// (the human's or the robot's), no dim in two pairs, no velocity a
+    /// position of another pair.
+    pub fn with_velocities(mut self, velocities: Vec<(usize, usize)>) -> Result<Roles> {
+        let bad = |reason: String| {
+            Err(TscError::InvalidSetting {
+                name: "roles",
+                reason,
+            })
+        };
+        let side = |d: usize| {
+            if self.human.contains(&d) {
+                Some(0)
+            } else if self.robot.contains(&d) {
+                Some(1)
+            } else {
+                None
+            }
+        };
+        let mut seen: Vec<usize> = Vec::new();
+        for &(v, x) in &velocities {
+            match (side(v), side(x)) {
+                (Some(a), Some(b)) if a == b && v != x => {}
+                _ => return bad(format!(
+                    "velocity {v} of position {x}: both must be dims of the same side, and differ"
+                )),
+            }
+            if seen.contains(&v) {
+                return bad(format!("dimension {v} is in two velocity pairs"));
+            }
+            seen.push(v);
+        }
+        if let Some(&(_, x)) = velocities.iter().find(|(_, x)| seen.contains(x)) {
+            return bad(format!("position {x} is itself a velocity"));
+        }
+        self.velocities = velocities;
+        Ok(self)
+    }
+
+    /// The `(velocity, position)` pairs of frame dims (see [`Roles::with_velocities`]).
+    pub fn velocities(&self) -> &[(usize, usize)] {
+        &self.velocities
     }
 
     /// Narrows the robot's scored dims to `scored`: a non-empty subset of the

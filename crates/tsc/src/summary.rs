@@ -96,9 +96,11 @@ impl FitSummary {
 }
 
 /// A predictive covariance calibrated on held-out demonstrations: the factor
-/// `c = q / χ²_level(p)` with `q` the `level` quantile of the held-out frames'
-/// squared Mahalanobis distances (`phasekit_gmr::coverage_scale`), and what it
-/// did to those frames' coverage and NLPD (scored dims, data units).
+/// `c = λ · q / χ²_level(p)` with `q` the `level` quantile of the held-out
+/// frames' squared Mahalanobis distances (`phasekit_gmr::coverage_scale`) and
+/// `λ` the widening that a left-out demonstration needs
+/// ([`CovarianceCalibration::demonstration_inflation`]), and what it did to
+/// those frames' coverage and NLPD (scored dims, data units).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[non_exhaustive]
 pub struct CovarianceCalibration {
@@ -106,6 +108,13 @@ pub struct CovarianceCalibration {
     pub scale: f64,
     /// The region's level (0.95).
     pub level: f64,
+    /// `λ ≥ 1`: how much the factor of the pooled held-out frames was
+    /// widened so that a left-out demonstration is covered at `level`
+    /// (`Calibration::Demonstrations`, `phasekit_gmr::demonstration_inflation`;
+    /// `scale = λ · Q_level(m²) / χ²_level(p)`); 1 when the frames are pooled
+    /// (`Calibration::Frames`), and in files written before it existed.
+    #[serde(default = "no_inflation")]
+    pub demonstration_inflation: f64,
     /// Held-out frames it was fitted on.
     pub frames: usize,
     /// Their share inside the `level` region before scaling.
@@ -116,6 +125,10 @@ pub struct CovarianceCalibration {
     pub nlpd_before: f64,
     /// And after.
     pub nlpd_after: f64,
+}
+
+fn no_inflation() -> f64 {
+    1.0
 }
 
 /// Why EM stopped.

@@ -8,6 +8,7 @@ mod emissions;
 mod gmeans_states;
 mod hsmm_preset;
 mod model_files_v1;
+mod reg_positions;
 mod reg_units;
 mod settings_and_defects;
 mod tsc;
