@@ -441,16 +441,30 @@ impl StudentT {
                 terms.push((w, xo.len() as f64, m.mahalanobis(&xo)));
             }
         }
+        // The terms that do not depend on the frame's distance, summed per
+        // number of observed dims once (one on complete data) instead of per
+        // frame: the golden-section search evaluates the objective ~80 times.
+        let mut by_dims: Vec<(f64, f64)> = Vec::new(); // (p, Σ w)
+        for &(w, p, _) in &terms {
+            match by_dims.iter_mut().find(|(q, _)| *q == p) {
+                Some((_, sw)) => *sw += w,
+                None => by_dims.push((p, w)),
+            }
+        }
         let objective = |nu: f64| -> f64 {
-            terms
+            let constant: f64 = by_dims
                 .iter()
-                .map(|&(w, p, delta)| {
-                    w * (libm::lgamma(0.5 * (nu + p))
+                .map(|&(p, sw)| {
+                    sw * (libm::lgamma(0.5 * (nu + p))
                         - libm::lgamma(0.5 * nu)
-                        - 0.5 * p * nu.ln()
-                        - 0.5 * (nu + p) * (delta / nu).ln_1p())
+                        - 0.5 * p * nu.ln())
                 })
-                .sum()
+                .sum();
+            constant
+                - terms
+                    .iter()
+                    .map(|&(w, p, delta)| 0.5 * w * (nu + p) * (delta / nu).ln_1p())
+                    .sum::<f64>()
         };
         let best = golden_section_max(DOF_RANGE.0.ln(), DOF_RANGE.1.ln(), |x| objective(x.exp()));
         let candidate = best.exp();
