@@ -11,7 +11,7 @@
 
 use crate::error::{HmmError, Result};
 use crate::inference::formulas::{start_update, transition_update};
-use crate::inference::PosteriorWorkspace;
+use crate::inference::{LaneWorkspace, PosteriorWorkspace, LANE_MAX_FRAMES};
 use crate::init::{initialise, HmmInit};
 use crate::model::Hmm;
 use phasekit_emission::restarts::best_of_restarts;
@@ -24,6 +24,21 @@ use std::time::Instant;
 
 /// Frames per E-step block: blocks are consecutive sequences holding at least this many frames.
 const BLOCK_FRAMES: usize = 4096;
+
+/// Sequences per group of the lane form (one per SIMD lane).
+const LANE_WIDTH: usize = 8;
+
+/// The fewest consecutive sequences worth running through the lane form.
+const LANE_MIN_GROUP: usize = 2;
+
+/// Buffers of [`Hmm::accumulate_group`], reused from group to group.
+#[derive(Default)]
+struct GroupScratch {
+    lens: Vec<usize>,
+    log_b: Vec<f64>,
+    gamma: Vec<f64>,
+    xi: Vec<f64>,
+}
 
 /// The scale on which the log-likelihood gain is compared with the tolerance.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -179,26 +194,99 @@ impl<E: Emission> Hmm<E> {
         acc: &mut ExpectedStatistics<E::Stats>,
     ) -> Result<()> {
         let seq = data.get(k);
-        let s = self.n_states();
         self.emission
             .log_density_into(seq, ws.log_b_for(seq.len()))
             .map_err(|e| HmmError::from(e).in_sequence(k))?;
         let ll = ws.run().map_err(|e| e.in_sequence(k))?;
+        self.add_posteriors(k, data, ll, &ws.gamma, &ws.xi, acc)
+    }
+
+    /// Adds the posteriors of sequence `k` (`log p(x)`, `γ`, `Σ_t ξ_t`) and
+    /// its emission statistics to `acc`.
+    fn add_posteriors(
+        &self,
+        k: usize,
+        data: &SequenceSet,
+        ll: f64,
+        gamma: &[f64],
+        xi: &[f64],
+        acc: &mut ExpectedStatistics<E::Stats>,
+    ) -> Result<()> {
+        let seq = data.get(k);
+        let s = self.n_states();
         acc.log_likelihood += ll;
-        for (a, g) in acc.start.iter_mut().zip(&ws.gamma[..s]) {
+        for (a, g) in acc.start.iter_mut().zip(&gamma[..s]) {
             *a += g;
         }
-        for (a, x) in acc.transitions.iter_mut().zip(&ws.xi) {
+        for (a, x) in acc.transitions.iter_mut().zip(xi) {
             *a += x;
         }
         acc.n_sequences += 1;
         acc.n_frames += seq.len();
         self.emission
-            .accumulate(seq, &ws.gamma, &mut acc.emission)
+            .accumulate(seq, gamma, &mut acc.emission)
             .map_err(|e| HmmError::from(e).in_sequence(k))
     }
 
-    /// The statistics of one block of consecutive sequences.
+    /// Adds the sequences `group` (at most [`W`](crate::inference) of them)
+    /// to `acc` through the lane form ([`LaneWorkspace`]), in sequence
+    /// order; a sequence that leaves the lane form's fast steps goes through
+    /// the per-sequence path (the same bits either way). If a log-density
+    /// fails, the whole group goes through the per-sequence path, so that
+    /// errors are reported in sequence order.
+    fn accumulate_group(
+        &self,
+        group: std::ops::Range<usize>,
+        data: &SequenceSet,
+        lanes: &mut LaneWorkspace,
+        scratch: &mut GroupScratch,
+        ws: &mut PosteriorWorkspace,
+        acc: &mut ExpectedStatistics<E::Stats>,
+    ) -> Result<()> {
+        let s = self.n_states();
+        scratch.lens.clear();
+        scratch
+            .lens
+            .extend(group.clone().map(|k| data.get(k).len()));
+        lanes.begin(&scratch.lens);
+        let mut loaded = true;
+        for (l, k) in group.clone().enumerate() {
+            let seq = data.get(k);
+            scratch.log_b.resize(seq.len() * s, 0.0);
+            if self
+                .emission
+                .log_density_into(seq, &mut scratch.log_b)
+                .is_err()
+            {
+                loaded = false;
+                break;
+            }
+            lanes.load(l, &scratch.log_b);
+        }
+        if !loaded {
+            for k in group {
+                self.accumulate_sequence(k, data, ws, acc)?;
+            }
+            return Ok(());
+        }
+        let ok = lanes.run();
+        scratch.xi.resize(s * s, 0.0);
+        for (l, k) in group.enumerate() {
+            if ok[l] {
+                let ll = lanes.log_likelihood(l);
+                lanes.gamma_into(l, &mut scratch.gamma);
+                lanes.xi_into(l, &mut scratch.xi);
+                self.add_posteriors(k, data, ll, &scratch.gamma, &scratch.xi, acc)?;
+            } else {
+                self.accumulate_sequence(k, data, ws, acc)?;
+            }
+        }
+        Ok(())
+    }
+
+    /// The statistics of one block of consecutive sequences: groups of up
+    /// to eight consecutive sequences of at most `LANE_MAX_FRAMES` frames
+    /// through the lane form when the model admits it, the others one by one.
     fn block_statistics(
         &self,
         range: std::ops::Range<usize>,
@@ -206,8 +294,26 @@ impl<E: Emission> Hmm<E> {
     ) -> Result<ExpectedStatistics<E::Stats>> {
         let mut acc = self.empty_statistics();
         let mut ws = PosteriorWorkspace::new(self);
-        for k in range {
-            self.accumulate_sequence(k, data, &mut ws, &mut acc)?;
+        let mut lanes = LaneWorkspace::new(self);
+        let mut scratch = GroupScratch::default();
+        let mut k = range.start;
+        while k < range.end {
+            let mut end = k;
+            if lanes.usable() {
+                while end < range.end
+                    && end - k < LANE_WIDTH
+                    && data.get(end).len() <= LANE_MAX_FRAMES
+                {
+                    end += 1;
+                }
+            }
+            if end - k >= LANE_MIN_GROUP {
+                self.accumulate_group(k..end, data, &mut lanes, &mut scratch, &mut ws, &mut acc)?;
+                k = end;
+            } else {
+                self.accumulate_sequence(k, data, &mut ws, &mut acc)?;
+                k += 1;
+            }
         }
         Ok(acc)
     }

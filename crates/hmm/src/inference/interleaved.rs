@@ -1,0 +1,607 @@
+//! The forward-backward of up to [`W`] sequences at once, one sequence per
+//! SIMD lane ("lane = sequence"), for models with few states.
+//!
+//! The per-sequence recursions ([`super::forward`], [`super::backward`],
+//! [`super::posteriors`]) keep one sequence's states in the lanes: with
+//! `S ≤ 16` most lanes carry padding, every step ends in horizontal sums and
+//! maxima, and each step waits for the previous one. Here lane `l` carries
+//! sequence `l` of a group, every per-state quantity is a vector over the
+//! group's sequences, and the sums, maxima and products over states are
+//! vertical: eight independent recursions advance in the same instructions.
+//!
+//! Only the fast form of the steps is done here (linear mode, every state
+//! reachable and every `a_ij > 0`, every density positive, no re-scaling,
+//! every next message at least [`SAFE`], every overlap `z_t ≥ SAFE`), with
+//! exactly the arithmetic of the per-sequence fast forms, lane by lane, in
+//! the same order: the sums over states follow [`super::kernels::sum_lanes`]
+//! (state `j` into partial sum `j mod 8`, combined by
+//! [`phasekit_emission::linalg::reduce_lanes`]), the products over states
+//! [`super::kernels::vec_mat`] (even and odd states in two fused
+//! multiply-add chains), the exponentials the same [`exp_slice`]. A sequence
+//! for which any step leaves the fast form is marked failed and the caller
+//! redoes it with the per-sequence path, so every result is bit-identical
+//! to [`super::PosteriorWorkspace`]'s (tested).
+//!
+//! Sequences of unequal lengths share a group: lane `l` is active for frames
+//! `t < T_l`; the backward recursion of a shorter sequence waits at
+//! `β̂ = 1/S` until its last frame comes, and its inactive frames add exact
+//! zeros to the expected transitions.
+
+use super::kernels::{Lanes, RESCALE, SAFE, W};
+use crate::model::Hmm;
+use phasekit_emission::linalg::{dispatch, exp_slice};
+use phasekit_emission::Emission;
+
+/// The largest number of states the lane form takes.
+pub(crate) const MAX_STATES: usize = 16;
+
+/// The longest sequence the lane form takes (longer ones go alone, through
+/// the per-sequence path, whose buffers are `W` times smaller).
+pub(crate) const MAX_FRAMES: usize = 4096;
+
+/// Lane-wise `e_l = e_l + v_l`.
+#[inline(always)]
+fn add(a: Lanes, b: Lanes) -> Lanes {
+    let mut o = [0.0; W];
+    for l in 0..W {
+        o[l] = a[l] + b[l];
+    }
+    o
+}
+
+/// `Σ_j v_j` per lane in the order of [`super::kernels::sum_lanes`]: state
+/// `j` into partial sum `q_{j mod 8}` (in increasing `j`, from `0.0`), then
+/// `((q₀ + q₄) + (q₂ + q₆)) + ((q₁ + q₅) + (q₃ + q₇))`.
+#[inline(always)]
+fn sum_states(v: &[Lanes]) -> Lanes {
+    let mut q = [[0.0; W]; 8];
+    for (j, vj) in v.iter().enumerate() {
+        let qj = &mut q[j % 8];
+        for l in 0..W {
+            qj[l] += vj[l];
+        }
+    }
+    reduce8(q)
+}
+
+/// `Σ_j x_j y_j` per lane in the order of [`super::kernels::dot_lanes`].
+#[inline(always)]
+fn dot_states(x: &[Lanes], y: &[Lanes]) -> Lanes {
+    let mut q = [[0.0; W]; 8];
+    for (j, (xj, yj)) in x.iter().zip(y).enumerate() {
+        let qj = &mut q[j % 8];
+        for l in 0..W {
+            qj[l] = xj[l].mul_add(yj[l], qj[l]);
+        }
+    }
+    reduce8(q)
+}
+
+/// [`phasekit_emission::linalg::reduce_lanes`] of eight partial sums, per lane.
+#[inline(always)]
+fn reduce8(q: [Lanes; 8]) -> Lanes {
+    let r0 = add(q[0], q[4]);
+    let r1 = add(q[1], q[5]);
+    let r2 = add(q[2], q[6]);
+    let r3 = add(q[3], q[7]);
+    add(add(r0, r2), add(r1, r3))
+}
+
+/// `out_j = Σ_i v_i m_ij` per lane, `m` given by its transpose (`m_t`,
+/// row-major `S × S`, row `j` = column `j` of `m`), in the order of
+/// [`super::kernels::vec_mat`]: even `i` and odd `i` in two fused
+/// multiply-add chains of increasing `i`, added at the end.
+#[inline(always)]
+fn vec_mat_lanes(v: &[Lanes], m_t: &[f64], out: &mut [Lanes]) {
+    let s = v.len();
+    for (o, col) in out.iter_mut().zip(m_t.chunks_exact(s)) {
+        let (mut even, mut odd) = ([0.0; W], [0.0; W]);
+        let mut pairs = v.chunks_exact(2).zip(col.chunks_exact(2));
+        for (vp, cp) in &mut pairs {
+            for l in 0..W {
+                even[l] = vp[0][l].mul_add(cp[0], even[l]);
+                odd[l] = vp[1][l].mul_add(cp[1], odd[l]);
+            }
+        }
+        if s % 2 == 1 {
+            let (vl, cl) = (&v[s - 1], col[s - 1]);
+            for l in 0..W {
+                even[l] = vl[l].mul_add(cl, even[l]);
+            }
+        }
+        *o = add(even, odd);
+    }
+}
+
+/// Per-step scratch vectors (kept across steps, so that no step clears more
+/// than its `S` entries).
+struct Scratch {
+    o: [Lanes; MAX_STATES],
+    n: [Lanes; MAX_STATES],
+}
+
+impl Scratch {
+    fn new() -> Self {
+        Scratch {
+            o: [[0.0; W]; MAX_STATES],
+            n: [[0.0; W]; MAX_STATES],
+        }
+    }
+}
+
+/// Buffers and model of the lane form (see the module documentation).
+#[derive(Debug, Clone)]
+pub(crate) struct LaneWorkspace {
+    s: usize,
+    /// Whether the model admits the fast form at all (`S ≤ MAX_STATES`,
+    /// every `a_ij > 0`, every `π_i ≥ SAFE`).
+    usable: bool,
+    /// `A` and `Aᵀ`, row-major; `π`.
+    a: Vec<f64>,
+    a_t: Vec<f64>,
+    start: Vec<f64>,
+    /// Sequences (lanes) in use and their lengths (0 past `n`).
+    n: usize,
+    lens: [usize; W],
+    t_max: usize,
+    /// `T_max × S` lane vectors: `log b` (then `γ`), `h_t`, `u_t`, `next_t`
+    /// (then `h_t / z_t`), and `T_max` vectors of `log c_t`.
+    log_b: Vec<Lanes>,
+    h: Vec<Lanes>,
+    u: Vec<Lanes>,
+    next: Vec<Lanes>,
+    lc: Vec<Lanes>,
+    /// `Σ_t ξ_t(i, j)` per lane, `S × S`.
+    xi: Vec<Lanes>,
+    /// Scratch: one lane's `log c_t`.
+    lc_row: Vec<f64>,
+}
+
+impl LaneWorkspace {
+    /// Empty buffers for `hmm`.
+    pub(crate) fn new<E: Emission>(hmm: &Hmm<E>) -> Self {
+        let s = hmm.n_states();
+        let a = hmm.transition.clone();
+        let a_t = (0..s * s).map(|k| a[(k % s) * s + k / s]).collect();
+        LaneWorkspace {
+            s,
+            usable: s <= MAX_STATES
+                && a.iter().all(|v| *v > 0.0)
+                && hmm.start.iter().all(|p| *p >= SAFE),
+            a,
+            a_t,
+            start: hmm.start.clone(),
+            n: 0,
+            lens: [0; W],
+            t_max: 0,
+            log_b: Vec::new(),
+            h: Vec::new(),
+            u: Vec::new(),
+            next: Vec::new(),
+            lc: Vec::new(),
+            xi: Vec::new(),
+            lc_row: Vec::new(),
+        }
+    }
+
+    /// Whether the model admits the lane form.
+    pub(crate) fn usable(&self) -> bool {
+        self.usable
+    }
+
+    /// Starts a group of sequences of these lengths (`1 ≤ n ≤ W`, each `≥ 1`):
+    /// sizes the buffers; then [`Self::load`] each lane.
+    pub(crate) fn begin(&mut self, lens: &[usize]) {
+        debug_assert!(!lens.is_empty() && lens.len() <= W && lens.iter().all(|t| *t > 0));
+        self.n = lens.len();
+        self.lens = [0; W];
+        self.lens[..self.n].copy_from_slice(lens);
+        self.t_max = lens.iter().copied().max().unwrap_or(0);
+        let len = self.t_max * self.s;
+        for v in [&mut self.log_b, &mut self.h, &mut self.u, &mut self.next] {
+            v.clear();
+            v.resize(len, [0.0; W]);
+        }
+        self.lc.clear();
+        self.lc.resize(self.t_max, [0.0; W]);
+    }
+
+    /// Lane `l`'s log-densities, row-major `T_l × S`.
+    pub(crate) fn load(&mut self, l: usize, log_b: &[f64]) {
+        debug_assert_eq!(log_b.len(), self.lens[l] * self.s);
+        for (v, x) in self.log_b.iter_mut().zip(log_b) {
+            v[l] = *x;
+        }
+    }
+
+    /// Lane `l`'s `log p(x)`: `Σ_t log c_t` summed in frame order.
+    pub(crate) fn log_likelihood(&mut self, l: usize) -> f64 {
+        self.lc_row.clear();
+        self.lc_row
+            .extend(self.lc[..self.lens[l]].iter().map(|v| v[l]));
+        self.lc_row.iter().sum()
+    }
+
+    /// Lane `l`'s `γ`, row-major `T_l × S`, into `gamma` (resized).
+    pub(crate) fn gamma_into(&self, l: usize, gamma: &mut Vec<f64>) {
+        let len = self.lens[l] * self.s;
+        gamma.clear();
+        gamma.extend(self.log_b[..len].iter().map(|v| v[l]));
+    }
+
+    /// Lane `l`'s `Σ_t ξ_t(i, j)`, row-major `S × S`, into `xi`.
+    pub(crate) fn xi_into(&self, l: usize, xi: &mut [f64]) {
+        for (x, v) in xi.iter_mut().zip(&self.xi) {
+            *x = v[l];
+        }
+    }
+
+    /// The forward-backward of the loaded group: which lanes stayed in the
+    /// fast form throughout (their `γ`, `Σ ξ` and `log p(x)` are then those
+    /// of the per-sequence path to the bit).
+    pub(crate) fn run(&mut self) -> [bool; W] {
+        dispatch(
+            #[inline(always)]
+            || self.run_inline(),
+        )
+    }
+
+    #[inline(always)]
+    fn run_inline(&mut self) -> [bool; W] {
+        let s = self.s;
+        let (t_max, lens) = (self.t_max, self.lens);
+        let mut failed = [false; W];
+        for (l, f) in failed.iter_mut().enumerate() {
+            *f = l >= self.n;
+        }
+        // Forward state: the prediction `p_t`; backward: `β̂_{t+1}`.
+        let mut pred = [[0.0; W]; MAX_STATES];
+        for (p, pi) in pred.iter_mut().zip(&self.start) {
+            *p = [*pi; W];
+        }
+        let mut beta = [[1.0 / s as f64; W]; MAX_STATES];
+        let mut scratch = Scratch::new();
+        for k in 0..t_max {
+            // Forward, frame k (lane l active while k < T_l).
+            let rows = k * s..(k + 1) * s;
+            let mut act = [false; W];
+            for l in 0..W {
+                act[l] = k < lens[l];
+            }
+            let lc = forward_step(
+                &self.log_b[rows.clone()],
+                &mut pred[..s],
+                &mut self.h[rows],
+                &self.a_t,
+                &act,
+                &mut failed,
+                &mut scratch,
+            );
+            self.lc[k] = lc;
+            // Backward, from frame t + 1 = T_max − 1 − k to t (lane l active
+            // while t + 1 ≤ T_l − 1).
+            if k + 1 < t_max {
+                let t = t_max - 2 - k;
+                let mut act = [false; W];
+                for l in 0..W {
+                    act[l] = t + 2 <= lens[l];
+                }
+                backward_step(
+                    &self.log_b[(t + 1) * s..(t + 2) * s],
+                    &mut beta[..s],
+                    &mut self.u[(t + 1) * s..(t + 2) * s],
+                    &mut self.next[t * s..(t + 1) * s],
+                    &self.a,
+                    &act,
+                    &mut failed,
+                    &mut scratch,
+                );
+            }
+        }
+        // γ (into `log_b`) and `h_t / z_t` (into `next`).
+        for t in 0..t_max {
+            let rows = t * s..(t + 1) * s;
+            let (ht, nt) = (&self.h[rows.clone()], &mut self.next[rows.clone()]);
+            let g = &mut self.log_b[rows];
+            let z = dot_states(ht, nt);
+            let mut inv = [0.0; W];
+            let (mut inner, mut last) = ([false; W], [false; W]);
+            for l in 0..W {
+                inner[l] = t + 1 < lens[l];
+                last[l] = t + 1 == lens[l];
+                let bad = z[l].is_nan() || z[l] < SAFE || z[l] == f64::INFINITY;
+                failed[l] |= inner[l] && bad;
+                inv[l] = 1.0 / z[l];
+            }
+            for ((gj, hj), nj) in g.iter_mut().zip(ht).zip(nt.iter_mut()) {
+                for l in 0..W {
+                    let hz = hj[l] * inv[l];
+                    gj[l] = if inner[l] {
+                        hz * nj[l]
+                    } else if last[l] {
+                        hj[l]
+                    } else {
+                        0.0
+                    };
+                    nj[l] = if inner[l] { hz } else { 0.0 };
+                }
+            }
+        }
+        // Σ_t ξ_t(i, j) = a_ij Σ_{t < T−1} (h_t(i) / z_t) u_{t+1}(j), the sum
+        // over t by fused multiply-adds in increasing t (inactive frames add
+        // exact zeros).
+        self.xi.clear();
+        self.xi.resize(s * s, [0.0; W]);
+        let steps = t_max.saturating_sub(1);
+        for i in 0..s {
+            for j0 in (0..s).step_by(4) {
+                let nj = (s - j0).min(4);
+                let mut acc = [[0.0; W]; 4];
+                for t in 0..steps {
+                    let x = self.next[t * s + i];
+                    let ut = &self.u[(t + 1) * s + j0..(t + 1) * s + j0 + nj];
+                    for (aj, uj) in acc.iter_mut().zip(ut) {
+                        for l in 0..W {
+                            aj[l] = x[l].mul_add(uj[l], aj[l]);
+                        }
+                    }
+                }
+                for (q, m) in acc[..nj].iter().enumerate() {
+                    let a = self.a[i * s + j0 + q];
+                    let x = &mut self.xi[i * s + j0 + q];
+                    for l in 0..W {
+                        x[l] = a * m[l];
+                    }
+                }
+            }
+        }
+        let mut ok = [false; W];
+        for l in 0..W {
+            ok[l] = !failed[l];
+        }
+        ok
+    }
+}
+
+/// One forward fast step for every lane ([`super::forward`]'s `fast_step`,
+/// lane by lane): from the prediction `pred` and the log-densities `lb` of
+/// a frame to the filtered `h` and the next prediction; returns `log c_t`.
+/// Marks an active lane failed where a condition of the fast form fails.
+#[inline(always)]
+fn forward_step(
+    lb: &[Lanes],
+    pred: &mut [Lanes],
+    h: &mut [Lanes],
+    a_t: &[f64],
+    act: &[bool; W],
+    failed: &mut [bool; W],
+    scratch: &mut Scratch,
+) -> Lanes {
+    let s = lb.len();
+    let mut m = [f64::NEG_INFINITY; W];
+    let mut finite = [true; W];
+    for v in lb {
+        for l in 0..W {
+            m[l] = if v[l] > m[l] { v[l] } else { m[l] };
+            finite[l] &= v[l] > f64::NEG_INFINITY;
+        }
+    }
+    let o = &mut scratch.o[..s];
+    for (ok, v) in o.iter_mut().zip(lb) {
+        for l in 0..W {
+            ok[l] = v[l] - m[l];
+        }
+    }
+    exp_slice(o.as_flattened_mut());
+    for (ok, p) in o.iter_mut().zip(pred.iter()) {
+        for l in 0..W {
+            ok[l] *= p[l];
+        }
+    }
+    let c = sum_states(o);
+    let mut inv = [0.0; W];
+    for l in 0..W {
+        inv[l] = 1.0 / c[l];
+    }
+    for ok in o.iter_mut() {
+        for l in 0..W {
+            ok[l] *= inv[l];
+        }
+    }
+    vec_mat_lanes(o, a_t, pred);
+    let mut safe = [true; W];
+    for p in pred.iter() {
+        for l in 0..W {
+            safe[l] &= p[l] >= SAFE;
+        }
+    }
+    h.copy_from_slice(o);
+    let mut lc = [0.0; W];
+    for l in 0..W {
+        let good = finite[l] && m[l] != f64::INFINITY && !c[l].is_nan() && c[l] >= RESCALE;
+        failed[l] |= act[l] && !(good && safe[l]);
+        lc[l] = m[l] + c[l].ln();
+    }
+    lc
+}
+
+/// One backward fast step for every lane ([`super::backward`]'s
+/// `fast_step`, lane by lane): from `β̂_{t+1}` (`beta`) and the
+/// log-densities `lb` of frame `t + 1` to `u_{t+1}`, `next_t` and `β̂_t`.
+/// Inactive lanes keep `beta` and write zeros.
+#[inline(always)]
+fn backward_step(
+    lb: &[Lanes],
+    beta: &mut [Lanes],
+    u: &mut [Lanes],
+    next: &mut [Lanes],
+    a: &[f64],
+    act: &[bool; W],
+    failed: &mut [bool; W],
+    scratch: &mut Scratch,
+) {
+    let s = lb.len();
+    let mut m = [f64::NEG_INFINITY; W];
+    let mut finite = [true; W];
+    for v in lb {
+        for l in 0..W {
+            m[l] = if v[l] > m[l] { v[l] } else { m[l] };
+            finite[l] &= v[l] > f64::NEG_INFINITY;
+        }
+    }
+    let w = &mut scratch.o[..s];
+    for (wk, v) in w.iter_mut().zip(lb) {
+        for l in 0..W {
+            wk[l] = v[l] - m[l];
+        }
+    }
+    exp_slice(w.as_flattened_mut());
+    for (wk, b) in w.iter_mut().zip(beta.iter()) {
+        for l in 0..W {
+            wk[l] *= b[l];
+        }
+    }
+    let total = sum_states(w);
+    let mut inv = [0.0; W];
+    for l in 0..W {
+        inv[l] = 1.0 / total[l];
+    }
+    for wk in w.iter_mut() {
+        for l in 0..W {
+            wk[l] *= inv[l];
+        }
+    }
+    let n = &mut scratch.n[..s];
+    vec_mat_lanes(w, a, n);
+    let mut safe = [true; W];
+    for v in n.iter() {
+        for l in 0..W {
+            safe[l] &= v[l] >= SAFE;
+        }
+    }
+    let total_next = sum_states(n);
+    let mut inv_next = [0.0; W];
+    for l in 0..W {
+        inv_next[l] = 1.0 / total_next[l];
+        let good = finite[l] && m[l] != f64::INFINITY && !total[l].is_nan() && total[l] >= RESCALE;
+        failed[l] |= act[l] && !(good && safe[l]);
+    }
+    for (((bk, uk), nk), (wk, vk)) in beta
+        .iter_mut()
+        .zip(u.iter_mut())
+        .zip(next.iter_mut())
+        .zip(w.iter().zip(n.iter()))
+    {
+        for l in 0..W {
+            bk[l] = if act[l] { vk[l] * inv_next[l] } else { bk[l] };
+            uk[l] = if act[l] { wk[l] } else { 0.0 };
+            nk[l] = if act[l] { vk[l] } else { 0.0 };
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::inference::forward::tests::random_case;
+    use crate::inference::PosteriorWorkspace;
+    use crate::model::Hmm;
+    use phasekit_emission::Gaussian;
+
+    fn bits(v: &[f64]) -> Vec<u64> {
+        v.iter().map(|x| x.to_bits()).collect()
+    }
+
+    /// A model from `random_case` with densities `log_b`, cut into
+    /// sequences of the given lengths.
+    fn check_group(hmm: &Hmm<Gaussian>, log_b: &[f64], lens: &[usize]) -> (usize, usize) {
+        let s = hmm.n_states();
+        let mut lanes = LaneWorkspace::new(hmm);
+        let mut ws = PosteriorWorkspace::new(hmm);
+        lanes.begin(lens);
+        let mut offsets = Vec::new();
+        let mut o = 0;
+        for (l, t) in lens.iter().enumerate() {
+            offsets.push(o);
+            lanes.load(l, &log_b[o * s..(o + t) * s]);
+            o += t;
+        }
+        let ok = lanes.run();
+        let (mut fast, mut slow) = (0, 0);
+        let (mut gamma, mut xi) = (Vec::new(), vec![0.0; s * s]);
+        for (l, t) in lens.iter().enumerate() {
+            let o = offsets[l];
+            ws.log_b_for(*t).copy_from_slice(&log_b[o * s..(o + t) * s]);
+            let want = ws.run();
+            if !ok[l] {
+                slow += 1;
+                continue;
+            }
+            fast += 1;
+            let want = want.expect("a fast lane is a possible sequence");
+            assert_eq!(
+                lanes.log_likelihood(l).to_bits(),
+                want.to_bits(),
+                "lane {l}"
+            );
+            lanes.gamma_into(l, &mut gamma);
+            assert_eq!(bits(&gamma), bits(&ws.gamma), "lane {l}");
+            lanes.xi_into(l, &mut xi);
+            assert_eq!(bits(&xi), bits(&ws.xi), "lane {l}");
+        }
+        assert!(ok[lens.len()..].iter().all(|v| !v));
+        (fast, slow)
+    }
+
+    /// Every lane that stays in the fast form gives the per-sequence path's
+    /// bits (`γ`, `Σ ξ`, `log p(x)`), for groups of 1 to 8 sequences of
+    /// unequal lengths (one-frame sequences included), `S = 1 … 16`, with
+    /// densities that send some lanes out of the fast form.
+    #[test]
+    fn lanes_equal_the_per_sequence_path_to_the_bit() {
+        let (mut fast, mut slow) = (0, 0);
+        for seed in 0..160u64 {
+            let s = 1 + (seed as usize % MAX_STATES);
+            let n = 1 + (seed as usize / 3) % W;
+            let lens: Vec<usize> = (0..n)
+                .map(|l| match (seed as usize + l) % 5 {
+                    0 => 1,
+                    1 => 2,
+                    _ => 3 + (seed as usize * 7 + l * 13) % 60,
+                })
+                .collect();
+            let total: usize = lens.iter().sum();
+            let (hmm, mut log_b) = random_case(seed, s, total, false);
+            // Mostly ordinary frames (so that most lanes stay fast); the
+            // extreme ones of `random_case` on some seeds only.
+            if seed % 4 != 0 {
+                for v in log_b.iter_mut() {
+                    if !(-30.0..=0.0).contains(v) {
+                        *v = -3.0;
+                    }
+                }
+            }
+            let (f, sl) = check_group(&hmm, &log_b, &lens);
+            fast += f;
+            slow += sl;
+        }
+        assert!(fast > 300, "only {fast} lanes stayed in the lane form");
+        assert!(slow > 10, "only {slow} lanes left the lane form");
+    }
+
+    /// Models the lane form refuses: a zero transition, a start below SAFE,
+    /// more than `MAX_STATES` states.
+    #[test]
+    fn the_lane_form_refuses_models_outside_its_fast_form() {
+        let g = |s: usize| Gaussian::diagonal(1, vec![0.0; s], vec![1.0; s]).unwrap();
+        let sparse = Hmm::new(vec![0.5, 0.5], vec![1.0, 0.0, 0.5, 0.5], g(2)).unwrap();
+        assert!(!LaneWorkspace::new(&sparse).usable());
+        let tiny = Hmm::new(vec![1.0, 1e-300], vec![0.5; 4], g(2)).unwrap();
+        assert!(!LaneWorkspace::new(&tiny).usable());
+        let s = MAX_STATES + 1;
+        let big = Hmm::new(vec![1.0 / s as f64; s], vec![1.0 / s as f64; s * s], g(s)).unwrap();
+        assert!(!LaneWorkspace::new(&big).usable());
+        let ok = Hmm::new(vec![0.5, 0.5], vec![0.5; 4], g(2)).unwrap();
+        assert!(LaneWorkspace::new(&ok).usable());
+    }
+}
