@@ -1,7 +1,7 @@
 //! The Gaussian's sufficient statistics (about per-state reference points,
 //! merged exactly) and its M-step with regularisation and jitter.
 
-use super::kernels::counts;
+use super::kernels::{counts, DIAG_LANES_MAX};
 use super::Gaussian;
 use crate::error::{EmissionError, Result};
 use crate::regularisation::{
@@ -58,6 +58,10 @@ impl Gaussian {
             self.accumulate_full(frames, weights, stats);
             return;
         }
+        if s * d <= DIAG_LANES_MAX {
+            Self::accumulate_diagonal(s, d, frames, weights, stats);
+            return;
+        }
         for i in 0..s {
             let c = &stats.shift[i * d..(i + 1) * d];
             let sum = &mut stats.sum[i * d..(i + 1) * d];
@@ -82,6 +86,84 @@ impl Gaussian {
                 }
             }
             stats.weight[i] += n;
+        }
+    }
+
+    /// The diagonal/spherical statistics with the states in the lanes
+    /// (`S·D ≤ DIAG_LANES_MAX`): for every state exactly the arithmetic of
+    /// the loop of [`Gaussian::accumulate_complete`] (over the frames whose
+    /// weight counts, in frame order: `n ← n + w`, the range, `e = x − c`,
+    /// `s ← s + w·e`, `q ← q + w·e·e`), the states of a frame side by side.
+    fn accumulate_diagonal(
+        s: usize,
+        d: usize,
+        frames: Frames<'_>,
+        weights: &[f64],
+        stats: &mut GaussianStats,
+    ) {
+        // Statistics by dimension, then state.
+        let z = [0.0; DIAG_LANES_MAX];
+        let (mut c, mut sum, mut q, mut lo, mut hi) = (z, z, z, z, z);
+        for i in 0..s {
+            for k in 0..d {
+                let (from, to) = (i * d + k, k * s + i);
+                c[to] = stats.shift[from];
+                sum[to] = stats.sum[from];
+                q[to] = stats.sum_sq[from];
+                lo[to] = stats.lo[from];
+                hi[to] = stats.hi[from];
+            }
+        }
+        let n = s * d;
+        let (c, sum_t, q_t, lo_t, hi_t) = (
+            &c[..n],
+            &mut sum[..n],
+            &mut q[..n],
+            &mut lo[..n],
+            &mut hi[..n],
+        );
+        // This call's weight per state, from 0 (added to the total at the end).
+        let mut count = [0.0; DIAG_LANES_MAX];
+        let weight = &mut count[..s];
+        crate::linalg::dispatch(
+            #[inline(always)]
+            || {
+                for (x, wt) in frames.iter().zip(weights.chunks_exact(s)) {
+                    for (nw, w) in weight.iter_mut().zip(wt) {
+                        *nw = if counts(*w) { *nw + w } else { *nw };
+                    }
+                    for (k, xk) in x.iter().enumerate() {
+                        let r = k * s..(k + 1) * s;
+                        for (((((ck, sk), qk), lk), hk), w) in c[r.clone()]
+                            .iter()
+                            .zip(&mut sum_t[r.clone()])
+                            .zip(&mut q_t[r.clone()])
+                            .zip(&mut lo_t[r.clone()])
+                            .zip(&mut hi_t[r])
+                            .zip(wt)
+                        {
+                            let on = counts(*w);
+                            let e = xk - ck;
+                            *lk = if on { lk.min(*xk) } else { *lk };
+                            *hk = if on { hk.max(*xk) } else { *hk };
+                            *sk = if on { *sk + w * e } else { *sk };
+                            *qk = if on { *qk + w * e * e } else { *qk };
+                        }
+                    }
+                }
+            },
+        );
+        for (total, n) in stats.weight.iter_mut().zip(&count[..s]) {
+            *total += n;
+        }
+        for i in 0..s {
+            for k in 0..d {
+                let (to, from) = (i * d + k, k * s + i);
+                stats.sum[to] = sum_t[from];
+                stats.sum_sq[to] = q_t[from];
+                stats.lo[to] = lo_t[from];
+                stats.hi[to] = hi_t[from];
+            }
         }
     }
 
