@@ -14,6 +14,9 @@
 //!                                 iteration, log-likelihoods and a parameter hash
 //! bench_compare breakdown [FILTER] where one Baum-Welch iteration spends its time
 //!                                 (forward-backward = E-step − log-densities − statistics)
+//! bench_compare steps NAME...     which path the E-step's recursions take (lane form,
+//!                                 per-sequence fast and general steps), at the initial
+//!                                 and at the fitted model
 //! bench_compare fit NAME [REPS]   REPS whole fits of one workload, one thread (for profilers)
 //! bench_compare kernels           CPU time of the emission hot paths on one sequence
 //! ```
@@ -541,6 +544,21 @@ fn workload_by_name(name: &str) -> Option<HmmWorkload> {
     if let Some(k) = name.strip_prefix("small_K") {
         return Some(small_workload(k.parse().ok()?));
     }
+    if let Some(rest) = name.strip_prefix("gen_S") {
+        // gen_S{s}_D{d}_{k}k: any generated shape (sequences of 250 frames, seed s).
+        let parts: Vec<&str> = rest.split('_').collect();
+        if let [s, d, k] = parts[..] {
+            if let (Ok(s), Some(Ok(d)), Some(Ok(k))) = (
+                s.parse::<usize>(),
+                d.strip_prefix('D').map(str::parse::<usize>),
+                k.strip_suffix('k').map(str::parse::<usize>),
+            ) {
+                if !(k == 100 && (s == 16 && d == 12 || s == 8 && d == 36)) {
+                    return Some(generated_workload(s, d, k * 1000, k * 4, s as u64));
+                }
+            }
+        }
+    }
     match name {
         "gen_S16_D12_100k" => Some(generated_workload(16, 12, 100_000, 400, 16)),
         "gen_S8_D36_100k" => Some(generated_workload(8, 36, 100_000, 400, 8)),
@@ -583,6 +601,16 @@ fn main() {
         Some("breakdown") => breakdown(args.get(2).map(String::as_str).unwrap_or("")),
         Some("scaling") => scaling(args.get(2).and_then(|v| v.parse().ok()).expect("FRAMES")),
         Some("threads") => threads(args.get(2).and_then(|v| v.parse().ok()).unwrap_or(3)),
+        Some("steps") => {
+            for name in args[2..].iter() {
+                let w = workload_by_name(name).expect("unknown workload");
+                let c = w.init.step_counts(&w.data).expect("E-step");
+                println!("{name} (initial model): {c:?}");
+                let fitted = fit_hmm(&w, 1).model;
+                let c = fitted.step_counts(&w.data).expect("E-step");
+                println!("{name} (after {} iterations): {c:?}", w.n_iter);
+            }
+        }
         Some("fit") => fit_only(
             args.get(2).map(String::as_str).expect("NAME"),
             args.get(3).and_then(|v| v.parse().ok()).unwrap_or(1),

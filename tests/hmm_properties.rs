@@ -956,7 +956,7 @@ proptest! {
 }
 
 /// The E-step runs groups of up to eight sequences through the lane form
-/// (one sequence per SIMD lane) when the model has at most 16 states, every
+/// (one sequence per SIMD lane) when the model has at most 12 states, every
 /// `a_ij > 0` and every `π_i ≥ 1e-290`; its statistics must be the
 /// per-sequence path's to the bit. Sequences of unequal lengths (one frame,
 /// two frames, longer than the lane form takes), missing values, `S = 1`,

@@ -31,6 +31,26 @@ const LANE_WIDTH: usize = 8;
 /// The fewest consecutive sequences worth running through the lane form.
 const LANE_MIN_GROUP: usize = 2;
 
+/// What [`Hmm::step_counts`] counts.
+#[doc(hidden)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct StepCounts {
+    /// Sequences the lane form finished.
+    pub lanes: usize,
+    /// Sequences the lane form handed back to the per-sequence path.
+    pub lanes_redone: usize,
+    /// Sequences that went to the per-sequence path directly.
+    pub per_sequence: usize,
+    /// Forward steps of the per-sequence path in the fast form.
+    pub forward_fast: usize,
+    /// Forward steps of the per-sequence path in the general form.
+    pub forward_general: usize,
+    /// Backward steps of the per-sequence path in the fast form.
+    pub backward_fast: usize,
+    /// Backward steps of the per-sequence path in the general form.
+    pub backward_general: usize,
+}
+
 /// Buffers of [`Hmm::accumulate_group`], reused from group to group.
 #[derive(Default)]
 struct GroupScratch {
@@ -298,15 +318,7 @@ impl<E: Emission> Hmm<E> {
         let mut scratch = GroupScratch::default();
         let mut k = range.start;
         while k < range.end {
-            let mut end = k;
-            if lanes.usable() {
-                while end < range.end
-                    && end - k < LANE_WIDTH
-                    && data.get(end).len() <= LANE_MAX_FRAMES
-                {
-                    end += 1;
-                }
-            }
+            let end = self.group_end(&lanes, data, k, range.end);
             if end - k >= LANE_MIN_GROUP {
                 self.accumulate_group(k..end, data, &mut lanes, &mut scratch, &mut ws, &mut acc)?;
                 k = end;
@@ -316,6 +328,77 @@ impl<E: Emission> Hmm<E> {
             }
         }
         Ok(acc)
+    }
+
+    /// Diagnostics of the E-step's paths (for benchmarks, not a stable
+    /// interface): how many sequences the lane form finished, how many it
+    /// handed back to the per-sequence path, and the per-sequence path's
+    /// forward and backward steps in their fast and general forms. Runs the
+    /// E-step's recursions once, on the current thread, without statistics.
+    #[doc(hidden)]
+    pub fn step_counts(&self, data: &SequenceSet) -> Result<StepCounts> {
+        let mut counts = StepCounts::default();
+        let mut ws = PosteriorWorkspace::new(self);
+        let mut lanes = LaneWorkspace::new(self);
+        let mut scratch = GroupScratch::default();
+        let s = self.n_states();
+        let one = |k: usize, ws: &mut PosteriorWorkspace| -> Result<()> {
+            let seq = data.get(k);
+            self.emission
+                .log_density_into(seq, ws.log_b_for(seq.len()))
+                .map_err(|e| HmmError::from(e).in_sequence(k))?;
+            ws.run().map_err(|e| e.in_sequence(k))?;
+            Ok(())
+        };
+        for range in blocks(data) {
+            let mut k = range.start;
+            while k < range.end {
+                let end = self.group_end(&lanes, data, k, range.end);
+                if end - k < LANE_MIN_GROUP {
+                    one(k, &mut ws)?;
+                    counts.per_sequence += 1;
+                    k += 1;
+                    continue;
+                }
+                scratch.lens.clear();
+                scratch.lens.extend((k..end).map(|q| data.get(q).len()));
+                lanes.begin(&scratch.lens);
+                for (l, q) in (k..end).enumerate() {
+                    let seq = data.get(q);
+                    scratch.log_b.resize(seq.len() * s, 0.0);
+                    self.emission.log_density_into(seq, &mut scratch.log_b)?;
+                    lanes.load(l, &scratch.log_b);
+                }
+                let ok = lanes.run();
+                for (l, q) in (k..end).enumerate() {
+                    if ok[l] {
+                        counts.lanes += 1;
+                    } else {
+                        counts.lanes_redone += 1;
+                        one(q, &mut ws)?;
+                    }
+                }
+                k = end;
+            }
+        }
+        let [ff, fg, bf, bg] = ws.step_counts();
+        counts.forward_fast = ff;
+        counts.forward_general = fg;
+        counts.backward_fast = bf;
+        counts.backward_general = bg;
+        Ok(counts)
+    }
+
+    /// The end of the lane group that starts at sequence `k` (`k` itself
+    /// when the model or the sequence does not admit the lane form).
+    fn group_end(&self, lanes: &LaneWorkspace, data: &SequenceSet, k: usize, end: usize) -> usize {
+        let mut e = k;
+        if lanes.usable() {
+            while e < end && e - k < LANE_WIDTH && data.get(e).len() <= LANE_MAX_FRAMES {
+                e += 1;
+            }
+        }
+        e
     }
 
     /// The E-step over all sequences, in parallel on the current rayon pool;
@@ -328,9 +411,15 @@ impl<E: Emission> Hmm<E> {
     /// grouping of the work over threads changes no bit. On one thread (or
     /// with one block) the blocks run in place, without the pool.
     pub fn expected_statistics(&self, data: &SequenceSet) -> Result<ExpectedStatistics<E::Stats>> {
+        self.e_step(data, false)
+    }
+
+    /// [`Hmm::expected_statistics`], on the current thread alone when
+    /// `serial` (the same bits: the blocks are merged in order either way).
+    fn e_step(&self, data: &SequenceSet, serial: bool) -> Result<ExpectedStatistics<E::Stats>> {
         let ranges = blocks(data);
         let parts: Vec<Result<ExpectedStatistics<E::Stats>>> =
-            if ranges.len() == 1 || rayon::current_num_threads() == 1 {
+            if serial || ranges.len() == 1 || rayon::current_num_threads() == 1 {
                 ranges
                     .into_iter()
                     .map(|range| self.block_statistics(range, data))
@@ -696,9 +785,17 @@ impl BaumWelch {
         }
     }
 
+    /// Runs `f` on the dedicated pool of [`BaumWelch::threads`]; with one
+    /// thread, on the calling thread (no pool to start: the E-step then runs
+    /// serially, [`BaumWelch::serial`]).
+    /// Whether the E-step runs on the calling thread alone (`threads(1)`).
+    fn serial(&self) -> bool {
+        self.threads == Some(1)
+    }
+
     fn in_pool<T: Send>(&self, f: impl FnOnce() -> Result<T> + Send) -> Result<T> {
         match self.threads {
-            None => f(),
+            None | Some(1) => f(),
             Some(n) => rayon::ThreadPoolBuilder::new()
                 .num_threads(n)
                 .build()
@@ -761,7 +858,7 @@ impl BaumWelch {
             let mut m_steps = Vec::new();
             let mut converged = false;
             loop {
-                let stats = hmm.expected_statistics(data)?;
+                let stats = hmm.e_step(data, self.serial())?;
                 let ll = stats.log_likelihood;
                 let obj = ll + hmm.emission.log_prior(&self.regularisation);
                 // Test the gain of what EM increases: the penalised objective

@@ -67,9 +67,10 @@ pub(crate) struct ForwardCore {
     /// Every entry of `reachable` is true.
     all_reachable: bool,
     log_mode: bool,
-    /// Frames that took the fast form (tests check that it runs).
-    #[cfg(test)]
-    fast_steps: usize,
+    /// Frames that took the fast form and the general form (diagnostics:
+    /// tests check that the fast form runs, `Hmm::step_counts` reports them).
+    pub(crate) fast_steps: usize,
+    pub(crate) general_steps: usize,
     // Scratch.
     alive: Vec<bool>,
     reach_next: Vec<bool>,
@@ -108,8 +109,8 @@ impl ForwardCore {
             reachable: vec![false; s],
             all_reachable: false,
             log_mode: false,
-            #[cfg(test)]
             fast_steps: 0,
+            general_steps: 0,
             alive: vec![false; s],
             reach_next: vec![false; s],
             pred_next: vec![[0.0; W]; c],
@@ -174,13 +175,11 @@ impl ForwardCore {
                 _ => self.fast_step_dyn(log_b, h),
             };
             if let Some(lc) = fast {
-                #[cfg(test)]
-                {
-                    self.fast_steps += 1;
-                }
+                self.fast_steps += 1;
                 return lc;
             }
         }
+        self.general_steps += 1;
         self.general_step(log_b, h)
     }
 

@@ -35,6 +35,28 @@ use phasekit_emission::Emission;
 /// The largest number of states the lane form takes.
 pub(crate) const MAX_STATES: usize = 16;
 
+/// The most states for which the E-step uses the lane form: [`DEFAULT_STATES`],
+/// or `PHASEKIT_LANE_STATES` (read once; `0` turns the lane form off, for
+/// benchmarks that compare the two paths; capped at [`MAX_STATES`]). The
+/// results are the same bits either way.
+pub(crate) fn max_states() -> usize {
+    static CAP: std::sync::OnceLock<usize> = std::sync::OnceLock::new();
+    *CAP.get_or_init(|| {
+        std::env::var("PHASEKIT_LANE_STATES")
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(DEFAULT_STATES)
+            .min(MAX_STATES)
+    })
+}
+
+/// The default of [`max_states`]. Measured whole fits (D = 12 and 36, 20,000
+/// frames in sequences of 250): the lane form was 1.7× faster at S = 4,
+/// even at S = 8 (the per-sequence path's one chunk is then all real
+/// states), 4–20 % faster at S = 12 and 4–9 % slower at S = 16, where the
+/// per-sequence path's two chunks are full (`BENCHMARKS.md`).
+pub(crate) const DEFAULT_STATES: usize = 12;
+
 /// The longest sequence the lane form takes (longer ones go alone, through
 /// the per-sequence path, whose buffers are `W` times smaller).
 pub(crate) const MAX_FRAMES: usize = 4096;
@@ -53,12 +75,11 @@ fn add(a: Lanes, b: Lanes) -> Lanes {
 /// `j` into partial sum `q_{j mod 8}` (in increasing `j`, from `0.0`), then
 /// `((q₀ + q₄) + (q₂ + q₆)) + ((q₁ + q₅) + (q₃ + q₇))`.
 #[inline(always)]
-fn sum_states(v: &[Lanes]) -> Lanes {
+fn sum_states<const S: usize>(v: &[Lanes; S]) -> Lanes {
     let mut q = [[0.0; W]; 8];
-    for (j, vj) in v.iter().enumerate() {
-        let qj = &mut q[j % 8];
+    for j in 0..S {
         for l in 0..W {
-            qj[l] += vj[l];
+            q[j % 8][l] += v[j][l];
         }
     }
     reduce8(q)
@@ -66,12 +87,11 @@ fn sum_states(v: &[Lanes]) -> Lanes {
 
 /// `Σ_j x_j y_j` per lane in the order of [`super::kernels::dot_lanes`].
 #[inline(always)]
-fn dot_states(x: &[Lanes], y: &[Lanes]) -> Lanes {
+fn dot_states<const S: usize>(x: &[Lanes; S], y: &[Lanes; S]) -> Lanes {
     let mut q = [[0.0; W]; 8];
-    for (j, (xj, yj)) in x.iter().zip(y).enumerate() {
-        let qj = &mut q[j % 8];
+    for j in 0..S {
         for l in 0..W {
-            qj[l] = xj[l].mul_add(yj[l], qj[l]);
+            q[j % 8][l] = x[j][l].mul_add(y[j][l], q[j % 8][l]);
         }
     }
     reduce8(q)
@@ -87,53 +107,37 @@ fn reduce8(q: [Lanes; 8]) -> Lanes {
     add(add(r0, r2), add(r1, r3))
 }
 
-/// `out_j = Σ_i v_i m_ij` per lane, `m` given by its transpose (`m_t`,
-/// row-major `S × S`, row `j` = column `j` of `m`), in the order of
-/// [`super::kernels::vec_mat`]: even `i` and odd `i` in two fused
-/// multiply-add chains of increasing `i`, added at the end.
+/// `out_j = Σ_i v_i m_ij` per lane, `m` given by its transpose (`m_t[j]` =
+/// column `j` of `m`), in the order of [`super::kernels::vec_mat`]: even
+/// `i` and odd `i` in two fused multiply-add chains of increasing `i`,
+/// added at the end.
 #[inline(always)]
-fn vec_mat_lanes(v: &[Lanes], m_t: &[f64], out: &mut [Lanes]) {
-    let s = v.len();
-    for (o, col) in out.iter_mut().zip(m_t.chunks_exact(s)) {
+fn vec_mat_lanes<const S: usize>(v: &[Lanes; S], m_t: &[[f64; S]; S]) -> [Lanes; S] {
+    let mut out = [[0.0; W]; S];
+    for j in 0..S {
         let (mut even, mut odd) = ([0.0; W], [0.0; W]);
-        let mut pairs = v.chunks_exact(2).zip(col.chunks_exact(2));
-        for (vp, cp) in &mut pairs {
-            for l in 0..W {
-                even[l] = vp[0][l].mul_add(cp[0], even[l]);
-                odd[l] = vp[1][l].mul_add(cp[1], odd[l]);
+        for i in 0..S {
+            let c = m_t[j][i];
+            if i % 2 == 0 {
+                for l in 0..W {
+                    even[l] = v[i][l].mul_add(c, even[l]);
+                }
+            } else {
+                for l in 0..W {
+                    odd[l] = v[i][l].mul_add(c, odd[l]);
+                }
             }
         }
-        if s % 2 == 1 {
-            let (vl, cl) = (&v[s - 1], col[s - 1]);
-            for l in 0..W {
-                even[l] = vl[l].mul_add(cl, even[l]);
-            }
-        }
-        *o = add(even, odd);
+        out[j] = add(even, odd);
     }
-}
-
-/// Per-step scratch vectors (kept across steps, so that no step clears more
-/// than its `S` entries).
-struct Scratch {
-    o: [Lanes; MAX_STATES],
-    n: [Lanes; MAX_STATES],
-}
-
-impl Scratch {
-    fn new() -> Self {
-        Scratch {
-            o: [[0.0; W]; MAX_STATES],
-            n: [[0.0; W]; MAX_STATES],
-        }
-    }
+    out
 }
 
 /// Buffers and model of the lane form (see the module documentation).
 #[derive(Debug, Clone)]
 pub(crate) struct LaneWorkspace {
     s: usize,
-    /// Whether the model admits the fast form at all (`S ≤ MAX_STATES`,
+    /// Whether the E-step uses the lane form for this model (`S ≤` [`max_states`],
     /// every `a_ij > 0`, every `π_i ≥ SAFE`).
     usable: bool,
     /// `A` and `Aᵀ`, row-major; `π`.
@@ -165,7 +169,7 @@ impl LaneWorkspace {
         let a_t = (0..s * s).map(|k| a[(k % s) * s + k / s]).collect();
         LaneWorkspace {
             s,
-            usable: s <= MAX_STATES
+            usable: s <= max_states()
                 && a.iter().all(|v| *v > 0.0)
                 && hmm.start.iter().all(|p| *p >= SAFE),
             a,
@@ -248,36 +252,61 @@ impl LaneWorkspace {
 
     #[inline(always)]
     fn run_inline(&mut self) -> [bool; W] {
-        let s = self.s;
+        match self.s {
+            1 => self.run_fixed::<1>(),
+            2 => self.run_fixed::<2>(),
+            3 => self.run_fixed::<3>(),
+            4 => self.run_fixed::<4>(),
+            5 => self.run_fixed::<5>(),
+            6 => self.run_fixed::<6>(),
+            7 => self.run_fixed::<7>(),
+            8 => self.run_fixed::<8>(),
+            9 => self.run_fixed::<9>(),
+            10 => self.run_fixed::<10>(),
+            11 => self.run_fixed::<11>(),
+            12 => self.run_fixed::<12>(),
+            13 => self.run_fixed::<13>(),
+            14 => self.run_fixed::<14>(),
+            15 => self.run_fixed::<15>(),
+            16 => self.run_fixed::<16>(),
+            _ => [false; W],
+        }
+    }
+
+    /// [`Self::run`] with `S` known at compile time (the per-state vectors
+    /// in registers, every loop over states unrolled).
+    #[inline(always)]
+    fn run_fixed<const S: usize>(&mut self) -> [bool; W] {
         let (t_max, lens) = (self.t_max, self.lens);
         let mut failed = [false; W];
         for (l, f) in failed.iter_mut().enumerate() {
             *f = l >= self.n;
         }
+        let mut a = [[0.0; S]; S];
+        let mut a_t = [[0.0; S]; S];
+        for i in 0..S {
+            for j in 0..S {
+                a[i][j] = self.a[i * S + j];
+                a_t[i][j] = self.a_t[i * S + j];
+            }
+        }
         // Forward state: the prediction `p_t`; backward: `β̂_{t+1}`.
-        let mut pred = [[0.0; W]; MAX_STATES];
+        let mut pred = [[0.0; W]; S];
         for (p, pi) in pred.iter_mut().zip(&self.start) {
             *p = [*pi; W];
         }
-        let mut beta = [[1.0 / s as f64; W]; MAX_STATES];
-        let mut scratch = Scratch::new();
+        let mut beta = [[1.0 / S as f64; W]; S];
+        let log_b: &[[Lanes; S]] = as_rows(&self.log_b);
+        let h: &mut [[Lanes; S]] = as_rows_mut(&mut self.h);
+        let u: &mut [[Lanes; S]] = as_rows_mut(&mut self.u);
+        let next: &mut [[Lanes; S]] = as_rows_mut(&mut self.next);
         for k in 0..t_max {
             // Forward, frame k (lane l active while k < T_l).
-            let rows = k * s..(k + 1) * s;
             let mut act = [false; W];
             for l in 0..W {
                 act[l] = k < lens[l];
             }
-            let lc = forward_step(
-                &self.log_b[rows.clone()],
-                &mut pred[..s],
-                &mut self.h[rows],
-                &self.a_t,
-                &act,
-                &mut failed,
-                &mut scratch,
-            );
-            self.lc[k] = lc;
+            self.lc[k] = forward_step(&log_b[k], &mut pred, &mut h[k], &a_t, &act, &mut failed);
             // Backward, from frame t + 1 = T_max − 1 − k to t (lane l active
             // while t + 1 ≤ T_l − 1).
             if k + 1 < t_max {
@@ -287,22 +316,20 @@ impl LaneWorkspace {
                     act[l] = t + 2 <= lens[l];
                 }
                 backward_step(
-                    &self.log_b[(t + 1) * s..(t + 2) * s],
-                    &mut beta[..s],
-                    &mut self.u[(t + 1) * s..(t + 2) * s],
-                    &mut self.next[t * s..(t + 1) * s],
-                    &self.a,
+                    &log_b[t + 1],
+                    &mut beta,
+                    &mut u[t + 1],
+                    &mut next[t],
+                    &a,
                     &act,
                     &mut failed,
-                    &mut scratch,
                 );
             }
         }
         // γ (into `log_b`) and `h_t / z_t` (into `next`).
+        let gamma: &mut [[Lanes; S]] = as_rows_mut(&mut self.log_b);
         for t in 0..t_max {
-            let rows = t * s..(t + 1) * s;
-            let (ht, nt) = (&self.h[rows.clone()], &mut self.next[rows.clone()]);
-            let g = &mut self.log_b[rows];
+            let (ht, nt, g) = (&h[t], &mut next[t], &mut gamma[t]);
             let z = dot_states(ht, nt);
             let mut inv = [0.0; W];
             let (mut inner, mut last) = ([false; W], [false; W]);
@@ -313,44 +340,46 @@ impl LaneWorkspace {
                 failed[l] |= inner[l] && bad;
                 inv[l] = 1.0 / z[l];
             }
-            for ((gj, hj), nj) in g.iter_mut().zip(ht).zip(nt.iter_mut()) {
+            for j in 0..S {
                 for l in 0..W {
-                    let hz = hj[l] * inv[l];
-                    gj[l] = if inner[l] {
-                        hz * nj[l]
+                    let hz = ht[j][l] * inv[l];
+                    g[j][l] = if inner[l] {
+                        hz * nt[j][l]
                     } else if last[l] {
-                        hj[l]
+                        ht[j][l]
                     } else {
                         0.0
                     };
-                    nj[l] = if inner[l] { hz } else { 0.0 };
+                    nt[j][l] = if inner[l] { hz } else { 0.0 };
                 }
             }
         }
         // Σ_t ξ_t(i, j) = a_ij Σ_{t < T−1} (h_t(i) / z_t) u_{t+1}(j), the sum
         // over t by fused multiply-adds in increasing t (inactive frames add
-        // exact zeros).
+        // exact zeros); four columns j at a time.
         self.xi.clear();
-        self.xi.resize(s * s, [0.0; W]);
+        self.xi.resize(S * S, [0.0; W]);
         let steps = t_max.saturating_sub(1);
-        for i in 0..s {
-            for j0 in (0..s).step_by(4) {
-                let nj = (s - j0).min(4);
+        for i in 0..S {
+            for j0 in (0..S).step_by(4) {
+                let nj = (S - j0).min(4);
                 let mut acc = [[0.0; W]; 4];
                 for t in 0..steps {
-                    let x = self.next[t * s + i];
-                    let ut = &self.u[(t + 1) * s + j0..(t + 1) * s + j0 + nj];
-                    for (aj, uj) in acc.iter_mut().zip(ut) {
-                        for l in 0..W {
-                            aj[l] = x[l].mul_add(uj[l], aj[l]);
+                    let x = next[t][i];
+                    let ut = &u[t + 1];
+                    for q in 0..4 {
+                        if q < nj {
+                            for l in 0..W {
+                                acc[q][l] = x[l].mul_add(ut[j0 + q][l], acc[q][l]);
+                            }
                         }
                     }
                 }
                 for (q, m) in acc[..nj].iter().enumerate() {
-                    let a = self.a[i * s + j0 + q];
-                    let x = &mut self.xi[i * s + j0 + q];
+                    let aij = a[i][j0 + q];
+                    let x = &mut self.xi[i * S + j0 + q];
                     for l in 0..W {
-                        x[l] = a * m[l];
+                        x[l] = aij * m[l];
                     }
                 }
             }
@@ -363,59 +392,66 @@ impl LaneWorkspace {
     }
 }
 
+/// `T × S` lane vectors as `T` rows of `S`.
+#[inline(always)]
+fn as_rows<const S: usize>(v: &[Lanes]) -> &[[Lanes; S]] {
+    let (rows, rest) = v.as_chunks::<S>();
+    debug_assert!(rest.is_empty());
+    rows
+}
+
+/// [`as_rows`], mutable.
+#[inline(always)]
+fn as_rows_mut<const S: usize>(v: &mut [Lanes]) -> &mut [[Lanes; S]] {
+    let (rows, rest) = v.as_chunks_mut::<S>();
+    debug_assert!(rest.is_empty());
+    rows
+}
+
 /// One forward fast step for every lane ([`super::forward`]'s `fast_step`,
 /// lane by lane): from the prediction `pred` and the log-densities `lb` of
 /// a frame to the filtered `h` and the next prediction; returns `log c_t`.
 /// Marks an active lane failed where a condition of the fast form fails.
 #[inline(always)]
-fn forward_step(
-    lb: &[Lanes],
-    pred: &mut [Lanes],
-    h: &mut [Lanes],
-    a_t: &[f64],
+fn forward_step<const S: usize>(
+    lb: &[Lanes; S],
+    pred: &mut [Lanes; S],
+    h: &mut [Lanes; S],
+    a_t: &[[f64; S]; S],
     act: &[bool; W],
     failed: &mut [bool; W],
-    scratch: &mut Scratch,
 ) -> Lanes {
-    let s = lb.len();
-    let mut m = [f64::NEG_INFINITY; W];
-    let mut finite = [true; W];
-    for v in lb {
+    let (m, finite) = max_and_finite(lb);
+    let mut o = [[0.0; W]; S];
+    for j in 0..S {
         for l in 0..W {
-            m[l] = if v[l] > m[l] { v[l] } else { m[l] };
-            finite[l] &= v[l] > f64::NEG_INFINITY;
-        }
-    }
-    let o = &mut scratch.o[..s];
-    for (ok, v) in o.iter_mut().zip(lb) {
-        for l in 0..W {
-            ok[l] = v[l] - m[l];
+            o[j][l] = lb[j][l] - m[l];
         }
     }
     exp_slice(o.as_flattened_mut());
-    for (ok, p) in o.iter_mut().zip(pred.iter()) {
+    for j in 0..S {
         for l in 0..W {
-            ok[l] *= p[l];
+            o[j][l] *= pred[j][l];
         }
     }
-    let c = sum_states(o);
+    let c = sum_states(&o);
     let mut inv = [0.0; W];
     for l in 0..W {
         inv[l] = 1.0 / c[l];
     }
-    for ok in o.iter_mut() {
+    for oj in o.iter_mut() {
         for l in 0..W {
-            ok[l] *= inv[l];
+            oj[l] *= inv[l];
         }
     }
-    vec_mat_lanes(o, a_t, pred);
+    *pred = vec_mat_lanes(&o, a_t);
     let mut safe = [true; W];
     for p in pred.iter() {
         for l in 0..W {
             safe[l] &= p[l] >= SAFE;
         }
     }
-    h.copy_from_slice(o);
+    *h = o;
     let mut lc = [0.0; W];
     for l in 0..W {
         let good = finite[l] && m[l] != f64::INFINITY && !c[l].is_nan() && c[l] >= RESCALE;
@@ -425,22 +461,9 @@ fn forward_step(
     lc
 }
 
-/// One backward fast step for every lane ([`super::backward`]'s
-/// `fast_step`, lane by lane): from `β̂_{t+1}` (`beta`) and the
-/// log-densities `lb` of frame `t + 1` to `u_{t+1}`, `next_t` and `β̂_t`.
-/// Inactive lanes keep `beta` and write zeros.
+/// `max_j v_j` per lane and whether every `v_j > −∞` (false for NaN).
 #[inline(always)]
-fn backward_step(
-    lb: &[Lanes],
-    beta: &mut [Lanes],
-    u: &mut [Lanes],
-    next: &mut [Lanes],
-    a: &[f64],
-    act: &[bool; W],
-    failed: &mut [bool; W],
-    scratch: &mut Scratch,
-) {
-    let s = lb.len();
+fn max_and_finite<const S: usize>(lb: &[Lanes; S]) -> (Lanes, [bool; W]) {
     let mut m = [f64::NEG_INFINITY; W];
     let mut finite = [true; W];
     for v in lb {
@@ -449,53 +472,69 @@ fn backward_step(
             finite[l] &= v[l] > f64::NEG_INFINITY;
         }
     }
-    let w = &mut scratch.o[..s];
-    for (wk, v) in w.iter_mut().zip(lb) {
+    (m, finite)
+}
+
+/// One backward fast step for every lane ([`super::backward`]'s
+/// `fast_step`, lane by lane): from `β̂_{t+1}` (`beta`) and the
+/// log-densities `lb` of frame `t + 1` to `u_{t+1}`, `next_t` and `β̂_t`.
+/// Inactive lanes keep `beta` and write zeros.
+#[inline(always)]
+fn backward_step<const S: usize>(
+    lb: &[Lanes; S],
+    beta: &mut [Lanes; S],
+    u: &mut [Lanes; S],
+    next: &mut [Lanes; S],
+    a: &[[f64; S]; S],
+    act: &[bool; W],
+    failed: &mut [bool; W],
+) {
+    let (m, finite) = max_and_finite(lb);
+    let mut w = [[0.0; W]; S];
+    for j in 0..S {
         for l in 0..W {
-            wk[l] = v[l] - m[l];
+            w[j][l] = lb[j][l] - m[l];
         }
     }
     exp_slice(w.as_flattened_mut());
-    for (wk, b) in w.iter_mut().zip(beta.iter()) {
+    for j in 0..S {
         for l in 0..W {
-            wk[l] *= b[l];
+            w[j][l] *= beta[j][l];
         }
     }
-    let total = sum_states(w);
+    let total = sum_states(&w);
     let mut inv = [0.0; W];
     for l in 0..W {
         inv[l] = 1.0 / total[l];
     }
-    for wk in w.iter_mut() {
+    for wj in w.iter_mut() {
         for l in 0..W {
-            wk[l] *= inv[l];
+            wj[l] *= inv[l];
         }
     }
-    let n = &mut scratch.n[..s];
-    vec_mat_lanes(w, a, n);
+    let n = vec_mat_lanes(&w, a);
     let mut safe = [true; W];
     for v in n.iter() {
         for l in 0..W {
             safe[l] &= v[l] >= SAFE;
         }
     }
-    let total_next = sum_states(n);
+    let total_next = sum_states(&n);
     let mut inv_next = [0.0; W];
     for l in 0..W {
         inv_next[l] = 1.0 / total_next[l];
         let good = finite[l] && m[l] != f64::INFINITY && !total[l].is_nan() && total[l] >= RESCALE;
         failed[l] |= act[l] && !(good && safe[l]);
     }
-    for (((bk, uk), nk), (wk, vk)) in beta
-        .iter_mut()
-        .zip(u.iter_mut())
-        .zip(next.iter_mut())
-        .zip(w.iter().zip(n.iter()))
-    {
+    for j in 0..S {
         for l in 0..W {
-            bk[l] = if act[l] { vk[l] * inv_next[l] } else { bk[l] };
-            uk[l] = if act[l] { wk[l] } else { 0.0 };
-            nk[l] = if act[l] { vk[l] } else { 0.0 };
+            beta[j][l] = if act[l] {
+                n[j][l] * inv_next[l]
+            } else {
+                beta[j][l]
+            };
+            u[j][l] = if act[l] { w[j][l] } else { 0.0 };
+            next[j][l] = if act[l] { n[j][l] } else { 0.0 };
         }
     }
 }
