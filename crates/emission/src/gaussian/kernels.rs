@@ -201,6 +201,13 @@ impl Gaussian {
             }
             CovarianceType::Diagonal | CovarianceType::Spherical => {
                 let (s, d) = (self.n_states, self.dim);
+                match d {
+                    1 => return self.diagonal_log_density_small::<1>(frames, out),
+                    2 => return self.diagonal_log_density_small::<2>(frames, out),
+                    3 => return self.diagonal_log_density_small::<3>(frames, out),
+                    4 => return self.diagonal_log_density_small::<4>(frames, out),
+                    _ => {}
+                }
                 if s * d <= DIAG_LANES_MAX {
                     self.diagonal_log_density(frames, out);
                     return;
@@ -211,6 +218,39 @@ impl Gaussian {
                     }
                 }
             }
+        }
+    }
+
+    /// Diagonal/spherical log-densities for `D` ≤ 4 known at compile time:
+    /// state by state, the frames in the lanes; for every frame and state
+    /// exactly the arithmetic of [`Gaussian::log_density_raw`].
+    fn diagonal_log_density_small<const D: usize>(&self, frames: Frames<'_>, out: &mut [f64]) {
+        let s = self.n_states;
+        let (x, _) = frames.as_slice().as_chunks::<D>();
+        for i in 0..s {
+            let mut mu = [0.0; D];
+            let mut w = [0.0; D];
+            for k in 0..D {
+                mu[k] = self.means[i * D + k];
+                w[k] = match self.kind {
+                    CovarianceType::Spherical => self.whiten[i],
+                    _ => self.whiten[i * D + k],
+                };
+            }
+            let ln = self.log_norm[i];
+            linalg::dispatch(
+                #[inline(always)]
+                || {
+                    for (xt, o) in x.iter().zip(out[i..].iter_mut().step_by(s)) {
+                        let mut m = 0.0;
+                        for k in 0..D {
+                            let e = (xt[k] - mu[k]) * w[k];
+                            m += e * e;
+                        }
+                        *o = ln - 0.5 * m;
+                    }
+                },
+            );
         }
     }
 

@@ -315,15 +315,29 @@ impl LaneWorkspace {
                 for l in 0..W {
                     act[l] = t + 2 <= lens[l];
                 }
-                backward_step(
-                    &log_b[t + 1],
-                    &mut beta,
-                    &mut u[t + 1],
-                    &mut next[t],
-                    &a,
-                    &act,
-                    &mut failed,
-                );
+                // Every lane active (equal lengths, or past the longest
+                // tail): no selects.
+                if act.iter().all(|v| *v) {
+                    backward_step::<S, true>(
+                        &log_b[t + 1],
+                        &mut beta,
+                        &mut u[t + 1],
+                        &mut next[t],
+                        &a,
+                        &act,
+                        &mut failed,
+                    );
+                } else {
+                    backward_step::<S, false>(
+                        &log_b[t + 1],
+                        &mut beta,
+                        &mut u[t + 1],
+                        &mut next[t],
+                        &a,
+                        &act,
+                        &mut failed,
+                    );
+                }
             }
         }
         // γ (into `log_b`) and `h_t / z_t` (into `next`).
@@ -339,6 +353,16 @@ impl LaneWorkspace {
                 let bad = z[l].is_nan() || z[l] < SAFE || z[l] == f64::INFINITY;
                 failed[l] |= inner[l] && bad;
                 inv[l] = 1.0 / z[l];
+            }
+            if inner.iter().all(|v| *v) {
+                for j in 0..S {
+                    for l in 0..W {
+                        let hz = ht[j][l] * inv[l];
+                        g[j][l] = hz * nt[j][l];
+                        nt[j][l] = hz;
+                    }
+                }
+                continue;
             }
             for j in 0..S {
                 for l in 0..W {
@@ -478,9 +502,9 @@ fn max_and_finite<const S: usize>(lb: &[Lanes; S]) -> (Lanes, [bool; W]) {
 /// One backward fast step for every lane ([`super::backward`]'s
 /// `fast_step`, lane by lane): from `β̂_{t+1}` (`beta`) and the
 /// log-densities `lb` of frame `t + 1` to `u_{t+1}`, `next_t` and `β̂_t`.
-/// Inactive lanes keep `beta` and write zeros.
+/// Inactive lanes keep `beta` and write zeros (`FULL`: every lane is active).
 #[inline(always)]
-fn backward_step<const S: usize>(
+fn backward_step<const S: usize, const FULL: bool>(
     lb: &[Lanes; S],
     beta: &mut [Lanes; S],
     u: &mut [Lanes; S],
@@ -525,6 +549,16 @@ fn backward_step<const S: usize>(
         inv_next[l] = 1.0 / total_next[l];
         let good = finite[l] && m[l] != f64::INFINITY && !total[l].is_nan() && total[l] >= RESCALE;
         failed[l] |= act[l] && !(good && safe[l]);
+    }
+    if FULL {
+        for j in 0..S {
+            for l in 0..W {
+                beta[j][l] = n[j][l] * inv_next[l];
+            }
+        }
+        *u = w;
+        *next = n;
+        return;
     }
     for j in 0..S {
         for l in 0..W {
