@@ -34,7 +34,7 @@ use super::kernels::{
     scale_lanes, sum_lanes, vec_mat, vec_mat_dyn, Lanes, PAD_LOG_B, RESCALE, SAFE, W,
 };
 use crate::model::Hmm;
-use phasekit_emission::linalg::{dispatch, exp_slice, log_sum_exp};
+use phasekit_emission::linalg::{dispatch, exp_slice, ln, log_sum_exp};
 use phasekit_emission::Emission;
 
 /// The forward recursion between two frames (see the module documentation).
@@ -216,7 +216,7 @@ impl ForwardCore {
         }
         h.copy_from_slice(&o);
         self.pred.copy_from_slice(&next);
-        Some(m + c.ln())
+        Some(m + ln(c))
     }
 
     /// [`ForwardCore::fast_step`] for more than four chunks (through memory).
@@ -248,7 +248,7 @@ impl ForwardCore {
             return None;
         }
         std::mem::swap(&mut self.pred, &mut self.pred_next);
-        Some(m + c.ln())
+        Some(m + ln(c))
     }
 
     /// `out_j = pred_j e^{log b_j − m}` over the possible states (0
@@ -320,7 +320,7 @@ impl ForwardCore {
             for v in h_padded.as_flattened_mut() {
                 *v *= inv;
             }
-            m + c.ln()
+            m + ln(c)
         };
         let h = &h_padded.as_flattened()[..s];
 

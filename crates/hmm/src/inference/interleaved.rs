@@ -17,7 +17,9 @@
 //! (state `j` into partial sum `j mod 8`, combined by
 //! [`phasekit_emission::linalg::reduce_lanes`]), the products over states
 //! [`super::kernels::vec_mat`] (even and odd states in two fused
-//! multiply-add chains), the exponentials the same [`exp_slice`]. A sequence
+//! multiply-add chains), the exponentials [`exp_lanes`] (the arithmetic of
+//! [`phasekit_emission::linalg::exp_slice`]), the logarithm of `log c_t`
+//! [`ln_lanes`] (that of [`phasekit_emission::linalg::ln`]). A sequence
 //! for which any step leaves the fast form is marked failed and the caller
 //! redoes it with the per-sequence path, so every result is bit-identical
 //! to [`super::PosteriorWorkspace`]'s (tested).
@@ -29,7 +31,7 @@
 
 use super::kernels::{Lanes, RESCALE, SAFE, W};
 use crate::model::Hmm;
-use phasekit_emission::linalg::{dispatch, exp_slice};
+use phasekit_emission::linalg::{dispatch, exp_lanes, ln_lanes};
 use phasekit_emission::Emission;
 
 /// The largest number of states the lane form takes.
@@ -452,7 +454,9 @@ fn forward_step<const S: usize>(
             o[j][l] = lb[j][l] - m[l];
         }
     }
-    exp_slice(o.as_flattened_mut());
+    for oj in o.iter_mut() {
+        exp_lanes(oj);
+    }
     for j in 0..S {
         for l in 0..W {
             o[j][l] *= pred[j][l];
@@ -476,11 +480,12 @@ fn forward_step<const S: usize>(
         }
     }
     *h = o;
-    let mut lc = [0.0; W];
+    let mut lc = c;
+    ln_lanes(&mut lc);
     for l in 0..W {
         let good = finite[l] && m[l] != f64::INFINITY && !c[l].is_nan() && c[l] >= RESCALE;
         failed[l] |= act[l] && !(good && safe[l]);
-        lc[l] = m[l] + c[l].ln();
+        lc[l] += m[l];
     }
     lc
 }
@@ -520,7 +525,9 @@ fn backward_step<const S: usize, const FULL: bool>(
             w[j][l] = lb[j][l] - m[l];
         }
     }
-    exp_slice(w.as_flattened_mut());
+    for wj in w.iter_mut() {
+        exp_lanes(wj);
+    }
     for j in 0..S {
         for l in 0..W {
             w[j][l] *= beta[j][l];
