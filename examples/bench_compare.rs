@@ -609,6 +609,19 @@ fn main() {
                 let fitted = fit_hmm(&w, 1).model;
                 let c = fitted.step_counts(&w.data).expect("E-step");
                 println!("{name} (after {} iterations): {c:?}", w.n_iter);
+                let zeros = fitted.transition().iter().filter(|a| **a == 0.0).count();
+                let tiny = fitted
+                    .transition()
+                    .iter()
+                    .filter(|a| **a > 0.0 && **a < 1e-290)
+                    .count();
+                let start_zeros = fitted.start().iter().filter(|p| **p < 1e-290).count();
+                println!(
+                    "{name} (after {} iterations): a_ij = 0: {zeros}, 0 < a_ij < 1e-290: {tiny} of {}; π_i < 1e-290: {start_zeros} of {}",
+                    w.n_iter,
+                    fitted.transition().len(),
+                    fitted.n_states()
+                );
             }
         }
         Some("fit") => fit_only(
