@@ -15,17 +15,20 @@
 /// Lanes of [`ln_lanes`].
 pub const LN_LANES: usize = 8;
 
-const LN2_HI: f64 = 6.931_471_803_691_238_164_90e-1;
-const LN2_LO: f64 = 1.908_214_929_270_587_700_02e-10;
-const LG1: f64 = 6.666_666_666_666_735_130e-1;
-const LG2: f64 = 3.999_999_999_940_941_908e-1;
-const LG3: f64 = 2.857_142_874_366_239_149e-1;
-const LG4: f64 = 2.222_219_843_214_978_396e-1;
-const LG5: f64 = 1.818_357_216_161_805_012e-1;
-const LG6: f64 = 1.531_383_769_920_937_332e-1;
-const LG7: f64 = 1.479_819_860_511_658_591e-1;
+// fdlibm's constants, by their bits (`e_log.c`).
+const LN2_HI: f64 = f64::from_bits(0x3fe6_2e42_fee0_0000);
+const LN2_LO: f64 = f64::from_bits(0x3dea_39ef_3579_3c76);
+const LG1: f64 = f64::from_bits(0x3fe5_5555_5555_5593);
+const LG2: f64 = f64::from_bits(0x3fd9_9999_9997_fa04);
+const LG3: f64 = f64::from_bits(0x3fd2_4924_9422_9359);
+const LG4: f64 = f64::from_bits(0x3fcc_71c5_1d8e_78af);
+const LG5: f64 = f64::from_bits(0x3fc7_4664_96cb_03de);
+const LG6: f64 = f64::from_bits(0x3fc3_9a09_d078_c69f);
+const LG7: f64 = f64::from_bits(0x3fc2_f112_df3e_5244);
 
 /// Whether `x` takes the polynomial path (positive, normal, finite).
+// `&` rather than `contains` (`&&`): no short circuit, the lanes stay branch-free.
+#[allow(clippy::manual_range_contains)]
 #[inline(always)]
 fn in_range(x: f64) -> bool {
     (x >= f64::MIN_POSITIVE) & (x <= f64::MAX)
@@ -55,6 +58,7 @@ fn ln_normal(x: f64) -> f64 {
     let r = t2 + t1;
     // fdlibm's choice between the two forms (`(hx − 0x6147a) | (0x6b851 − hx) > 0`
     // on the unscaled mantissa bits).
+    #[allow(clippy::manual_range_contains)] // `&`: branch-free lanes
     let with_hfsq = (hm >= 0x6147a) & (hm <= 0x6b851);
     let hfsq = 0.5 * f * f;
     let a = dk * LN2_HI - ((hfsq - (s * (hfsq + r) + dk * LN2_LO)) - f);
@@ -78,7 +82,7 @@ pub fn ln(x: f64) -> f64 {
 
 /// `v_l ← ln v_l` on every lane, the lanes of positive normal values
 /// vectorised (see [`ln`]). In the build of its caller: run it through
-/// [`super::dispatch`].
+/// [`dispatch`](crate::linalg::dispatch()).
 #[inline(always)]
 pub fn ln_lanes(v: &mut [f64; LN_LANES]) {
     let x = *v;
