@@ -13,6 +13,11 @@
 //! bench_compare threads [REPS]    workload 2 on 1 and on 2 threads: time per
 //!                                 iteration, log-likelihoods and a parameter hash
 //! bench_compare breakdown [FILTER] where one Baum-Welch iteration spends its time
+//!                                 (forward-backward = E-step − log-densities − statistics)
+//! bench_compare steps NAME...     which path the E-step's recursions take (lane form,
+//!                                 per-sequence fast and general steps), at the initial
+//!                                 and at the fitted model
+//! bench_compare fit NAME [REPS]   REPS whole fits of one workload, one thread (for profilers)
 //! bench_compare kernels           CPU time of the emission hot paths on one sequence
 //! ```
 //!
@@ -381,10 +386,14 @@ fn breakdown(filter: &str) {
                 black_box(e.log_density(s).unwrap());
             }
         });
-        let post = best(&mut || {
-            for s in w.data.iter() {
-                black_box(h.posteriors(s).unwrap());
-            }
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .unwrap();
+        // The E-step as Baum-Welch runs it (lane form where it applies):
+        // log-densities, forward-backward and statistics.
+        let estep = best(&mut || {
+            black_box(pool.install(|| h.expected_statistics(&w.data).unwrap()));
         });
         let gammas: Vec<Vec<f64>> = w
             .data
@@ -398,17 +407,13 @@ fn breakdown(filter: &str) {
             }
             black_box(st);
         });
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(1)
-            .build()
-            .unwrap();
         let stats = pool.install(|| h.expected_statistics(&w.data).unwrap());
         let reg = w.reg();
         let m = best(&mut || {
             black_box(h.maximise(&stats, Update::default(), &reg).unwrap());
         });
-        let fb = post - ld;
-        let total = post + acc + m;
+        let fb = estep - ld - acc;
+        let total = estep + m;
         println!(
             "| {} | {ld:.2} | {fb:.2} | {acc:.2} | {m:.2} | {total:.2} | {:.0}% |",
             w.name,
@@ -534,6 +539,56 @@ fn kernels() {
     }
 }
 
+/// The workload of that name (`paper_*`, `gen_*`, `small_K*`), or `None`.
+fn workload_by_name(name: &str) -> Option<HmmWorkload> {
+    if let Some(k) = name.strip_prefix("small_K") {
+        return Some(small_workload(k.parse().ok()?));
+    }
+    if let Some(rest) = name.strip_prefix("gen_S") {
+        // gen_S{s}_D{d}_{k}k: any generated shape (sequences of 250 frames, seed s).
+        let parts: Vec<&str> = rest.split('_').collect();
+        if let [s, d, k] = parts[..] {
+            if let (Ok(s), Some(Ok(d)), Some(Ok(k))) = (
+                s.parse::<usize>(),
+                d.strip_prefix('D').map(str::parse::<usize>),
+                k.strip_suffix('k').map(str::parse::<usize>),
+            ) {
+                if !(k == 100 && (s == 16 && d == 12 || s == 8 && d == 36)) {
+                    return Some(generated_workload(s, d, k * 1000, k * 4, s as u64));
+                }
+            }
+        }
+    }
+    match name {
+        "gen_S16_D12_100k" => Some(generated_workload(16, 12, 100_000, 400, 16)),
+        "gen_S8_D36_100k" => Some(generated_workload(8, 36, 100_000, 400, 8)),
+        "paper_D36_K8" => paper_workload(Columns::AllJoints, 8),
+        "paper_D36_K15" => paper_workload(Columns::AllJoints, 15),
+        "paper_D12_K8" => paper_workload(Columns::Wrists, 8),
+        "paper_D12_K15" => paper_workload(Columns::Wrists, 15),
+        _ => None,
+    }
+}
+
+/// `REPS` whole fits of one workload on one thread, for profilers
+/// (`valgrind --tool=callgrind`, `perf record`): prints the CPU time of each
+/// and the final log-likelihood.
+fn fit_only(name: &str, reps: usize) {
+    let w = workload_by_name(name).expect("unknown workload");
+    for _ in 0..reps {
+        let c0 = process_cpu_seconds();
+        let f = fit_hmm(&w, 1);
+        let cpu = process_cpu_seconds() - c0;
+        println!(
+            "{name} fit {:.3} ms CPU ({} iterations) final_ll={:.17e} param_hash={}",
+            cpu * 1e3,
+            w.n_iter,
+            f.report.log_likelihood.last().unwrap(),
+            hmm_hash(&f.model)
+        );
+    }
+}
+
 /// A workload built only when its name passes the filter.
 type LazyWorkload = Box<dyn Fn() -> Option<HmmWorkload>>;
 
@@ -546,6 +601,33 @@ fn main() {
         Some("breakdown") => breakdown(args.get(2).map(String::as_str).unwrap_or("")),
         Some("scaling") => scaling(args.get(2).and_then(|v| v.parse().ok()).expect("FRAMES")),
         Some("threads") => threads(args.get(2).and_then(|v| v.parse().ok()).unwrap_or(3)),
+        Some("steps") => {
+            for name in args[2..].iter() {
+                let w = workload_by_name(name).expect("unknown workload");
+                let c = w.init.step_counts(&w.data).expect("E-step");
+                println!("{name} (initial model): {c:?}");
+                let fitted = fit_hmm(&w, 1).model;
+                let c = fitted.step_counts(&w.data).expect("E-step");
+                println!("{name} (after {} iterations): {c:?}", w.n_iter);
+                let zeros = fitted.transition().iter().filter(|a| **a == 0.0).count();
+                let tiny = fitted
+                    .transition()
+                    .iter()
+                    .filter(|a| **a > 0.0 && **a < 1e-290)
+                    .count();
+                let start_zeros = fitted.start().iter().filter(|p| **p < 1e-290).count();
+                println!(
+                    "{name} (after {} iterations): a_ij = 0: {zeros}, 0 < a_ij < 1e-290: {tiny} of {}; π_i < 1e-290: {start_zeros} of {}",
+                    w.n_iter,
+                    fitted.transition().len(),
+                    fitted.n_states()
+                );
+            }
+        }
+        Some("fit") => fit_only(
+            args.get(2).map(String::as_str).expect("NAME"),
+            args.get(3).and_then(|v| v.parse().ok()).unwrap_or(1),
+        ),
         Some("run") => {
             let dir = Path::new(args.get(2).expect("DIR"));
             let filter = args.get(3).cloned().unwrap_or_default();

@@ -954,3 +954,112 @@ proptest! {
         }
     }
 }
+
+/// The E-step runs groups of up to eight sequences through the lane form
+/// (one sequence per SIMD lane) when the model has at most 12 states, every
+/// `a_ij > 0` and every `π_i ≥ 1e-290`; its statistics must be the
+/// per-sequence path's to the bit. Sequences of unequal lengths (one frame,
+/// two frames, longer than the lane form takes), missing values, `S = 1`,
+/// `S` not a multiple of the lane width, one sequence impossible to explain
+/// quickly (a frame far below every state), full and diagonal Gaussians.
+#[test]
+fn e_step_through_the_lanes_is_the_per_sequence_sum_to_the_bit() {
+    for (case, (s, d, kind)) in [
+        (1, 1, "diag"),
+        (2, 1, "diag"),
+        (3, 2, "full"),
+        (5, 1, "diag"),
+        (9, 2, "diag"),
+        (16, 3, "full"),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let mut rng = ChaCha8Rng::seed_from_u64(40 + case as u64);
+        let means: Vec<f64> = (0..s * d).map(|_| rng.random_range(-2.0..2.0)).collect();
+        let g = if kind == "full" {
+            let covs: Vec<f64> = (0..s)
+                .flat_map(|_| {
+                    let mut c = vec![0.0; d * d];
+                    for k in 0..d {
+                        c[k * d + k] = rng.random_range(0.5..1.5);
+                    }
+                    c
+                })
+                .collect();
+            Gaussian::full(d, means, covs).unwrap()
+        } else {
+            let vars: Vec<f64> = (0..s * d).map(|_| rng.random_range(0.5..1.5)).collect();
+            Gaussian::diagonal(d, means, vars).unwrap()
+        };
+        let row = |rng: &mut ChaCha8Rng| {
+            let r: Vec<f64> = (0..s).map(|_| rng.random_range(0.1..1.0)).collect();
+            let t: f64 = r.iter().sum();
+            r.into_iter().map(|v| v / t).collect::<Vec<f64>>()
+        };
+        let start = row(&mut rng);
+        let a: Vec<f64> = (0..s).flat_map(|_| row(&mut rng)).collect();
+        let hmm = Hmm::new(start, a, g).unwrap();
+        let lens = [1usize, 2, 37, 100, 100, 5, 100, 64, 3, 1, 80, 4100, 90, 17];
+        let seqs: Vec<Vec<f64>> = lens
+            .iter()
+            .enumerate()
+            .map(|(k, t)| {
+                let mut x: Vec<f64> = (0..t * d).map(|_| rng.random_range(-3.0..3.0)).collect();
+                if k == 3 {
+                    x[10 * d] = f64::NAN; // a missing value
+                }
+                if k == 6 {
+                    x[50 * d] = 1e5; // far below every state
+                }
+                x
+            })
+            .collect();
+        let data = SequenceSet::new(&seqs, d).unwrap();
+        let stats: ExpectedStatistics<GaussianStats> =
+            pool(1, || hmm.expected_statistics(&data)).unwrap();
+        // The per-sequence path, in the E-step's blocks (≥ 4096 frames each).
+        let mut blocks: Vec<ExpectedStatistics<GaussianStats>> = Vec::new();
+        let mut frames = 4096;
+        for seq in data.iter() {
+            if frames >= 4096 {
+                blocks.push(ExpectedStatistics {
+                    log_likelihood: 0.0,
+                    start: vec![0.0; s],
+                    transitions: vec![0.0; s * s],
+                    emission: hmm.emission().new_stats(),
+                    n_sequences: 0,
+                    n_frames: 0,
+                });
+                frames = 0;
+            }
+            frames += seq.len();
+            let b = blocks.last_mut().unwrap();
+            let p = hmm.posteriors(seq).unwrap();
+            b.log_likelihood += p.log_likelihood;
+            for (x, g) in b.start.iter_mut().zip(&p.gamma) {
+                *x += g;
+            }
+            for (x, v) in b.transitions.iter_mut().zip(&p.expected_transitions) {
+                *x += v;
+            }
+            b.n_sequences += 1;
+            b.n_frames += seq.len();
+            hmm.emission()
+                .accumulate(seq, &p.gamma, &mut b.emission)
+                .unwrap();
+        }
+        let mut want = blocks.remove(0);
+        for b in &blocks {
+            want.merge(b).unwrap();
+        }
+        assert_eq!(
+            stats.log_likelihood.to_bits(),
+            want.log_likelihood.to_bits(),
+            "S = {s}"
+        );
+        assert_eq!(bits(&stats.start), bits(&want.start), "S = {s}");
+        assert_eq!(bits(&stats.transitions), bits(&want.transitions), "S = {s}");
+        assert_eq!(stats.emission, want.emission, "S = {s}");
+    }
+}

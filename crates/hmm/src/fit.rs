@@ -11,7 +11,7 @@
 
 use crate::error::{HmmError, Result};
 use crate::inference::formulas::{start_update, transition_update};
-use crate::inference::PosteriorWorkspace;
+use crate::inference::{LaneWorkspace, PosteriorWorkspace, LANE_MAX_FRAMES};
 use crate::init::{initialise, HmmInit};
 use crate::model::Hmm;
 use phasekit_emission::restarts::best_of_restarts;
@@ -24,6 +24,41 @@ use std::time::Instant;
 
 /// Frames per E-step block: blocks are consecutive sequences holding at least this many frames.
 const BLOCK_FRAMES: usize = 4096;
+
+/// Sequences per group of the lane form (one per SIMD lane).
+const LANE_WIDTH: usize = 8;
+
+/// The fewest consecutive sequences worth running through the lane form.
+const LANE_MIN_GROUP: usize = 2;
+
+/// What [`Hmm::step_counts`] counts.
+#[doc(hidden)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct StepCounts {
+    /// Sequences the lane form finished.
+    pub lanes: usize,
+    /// Sequences the lane form handed back to the per-sequence path.
+    pub lanes_redone: usize,
+    /// Sequences that went to the per-sequence path directly.
+    pub per_sequence: usize,
+    /// Forward steps of the per-sequence path in the fast form.
+    pub forward_fast: usize,
+    /// Forward steps of the per-sequence path in the general form.
+    pub forward_general: usize,
+    /// Backward steps of the per-sequence path in the fast form.
+    pub backward_fast: usize,
+    /// Backward steps of the per-sequence path in the general form.
+    pub backward_general: usize,
+}
+
+/// Buffers of [`Hmm::accumulate_group`], reused from group to group.
+#[derive(Default)]
+struct GroupScratch {
+    lens: Vec<usize>,
+    log_b: Vec<f64>,
+    gamma: Vec<f64>,
+    xi: Vec<f64>,
+}
 
 /// The scale on which the log-likelihood gain is compared with the tolerance.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -179,26 +214,99 @@ impl<E: Emission> Hmm<E> {
         acc: &mut ExpectedStatistics<E::Stats>,
     ) -> Result<()> {
         let seq = data.get(k);
-        let s = self.n_states();
         self.emission
             .log_density_into(seq, ws.log_b_for(seq.len()))
             .map_err(|e| HmmError::from(e).in_sequence(k))?;
         let ll = ws.run().map_err(|e| e.in_sequence(k))?;
+        self.add_posteriors(k, data, ll, &ws.gamma, &ws.xi, acc)
+    }
+
+    /// Adds the posteriors of sequence `k` (`log p(x)`, `γ`, `Σ_t ξ_t`) and
+    /// its emission statistics to `acc`.
+    fn add_posteriors(
+        &self,
+        k: usize,
+        data: &SequenceSet,
+        ll: f64,
+        gamma: &[f64],
+        xi: &[f64],
+        acc: &mut ExpectedStatistics<E::Stats>,
+    ) -> Result<()> {
+        let seq = data.get(k);
+        let s = self.n_states();
         acc.log_likelihood += ll;
-        for (a, g) in acc.start.iter_mut().zip(&ws.gamma[..s]) {
+        for (a, g) in acc.start.iter_mut().zip(&gamma[..s]) {
             *a += g;
         }
-        for (a, x) in acc.transitions.iter_mut().zip(&ws.xi) {
+        for (a, x) in acc.transitions.iter_mut().zip(xi) {
             *a += x;
         }
         acc.n_sequences += 1;
         acc.n_frames += seq.len();
         self.emission
-            .accumulate(seq, &ws.gamma, &mut acc.emission)
+            .accumulate(seq, gamma, &mut acc.emission)
             .map_err(|e| HmmError::from(e).in_sequence(k))
     }
 
-    /// The statistics of one block of consecutive sequences.
+    /// Adds the sequences `group` (at most [`W`](crate::inference) of them)
+    /// to `acc` through the lane form ([`LaneWorkspace`]), in sequence
+    /// order; a sequence that leaves the lane form's fast steps goes through
+    /// the per-sequence path (the same bits either way). If a log-density
+    /// fails, the whole group goes through the per-sequence path, so that
+    /// errors are reported in sequence order.
+    fn accumulate_group(
+        &self,
+        group: std::ops::Range<usize>,
+        data: &SequenceSet,
+        lanes: &mut LaneWorkspace,
+        scratch: &mut GroupScratch,
+        ws: &mut PosteriorWorkspace,
+        acc: &mut ExpectedStatistics<E::Stats>,
+    ) -> Result<()> {
+        let s = self.n_states();
+        scratch.lens.clear();
+        scratch
+            .lens
+            .extend(group.clone().map(|k| data.get(k).len()));
+        lanes.begin(&scratch.lens);
+        let mut loaded = true;
+        for (l, k) in group.clone().enumerate() {
+            let seq = data.get(k);
+            scratch.log_b.resize(seq.len() * s, 0.0);
+            if self
+                .emission
+                .log_density_into(seq, &mut scratch.log_b)
+                .is_err()
+            {
+                loaded = false;
+                break;
+            }
+            lanes.load(l, &scratch.log_b);
+        }
+        if !loaded {
+            for k in group {
+                self.accumulate_sequence(k, data, ws, acc)?;
+            }
+            return Ok(());
+        }
+        let ok = lanes.run();
+        scratch.xi.resize(s * s, 0.0);
+        for (l, k) in group.enumerate() {
+            if ok[l] {
+                let ll = lanes.log_likelihood(l);
+                lanes.gamma_into(l, &mut scratch.gamma);
+                lanes.xi_into(l, &mut scratch.xi);
+                self.add_posteriors(k, data, ll, &scratch.gamma, &scratch.xi, acc)?;
+            } else {
+                self.accumulate_sequence(k, data, ws, acc)?;
+            }
+        }
+        Ok(())
+    }
+
+    /// The statistics of one block of consecutive sequences: groups of up
+    /// to eight consecutive sequences of at most `LANE_MAX_FRAMES` frames
+    /// through the lane form when the model admits it, the others one by one.
     fn block_statistics(
         &self,
         range: std::ops::Range<usize>,
@@ -206,10 +314,91 @@ impl<E: Emission> Hmm<E> {
     ) -> Result<ExpectedStatistics<E::Stats>> {
         let mut acc = self.empty_statistics();
         let mut ws = PosteriorWorkspace::new(self);
-        for k in range {
-            self.accumulate_sequence(k, data, &mut ws, &mut acc)?;
+        let mut lanes = LaneWorkspace::new(self);
+        let mut scratch = GroupScratch::default();
+        let mut k = range.start;
+        while k < range.end {
+            let end = self.group_end(&lanes, data, k, range.end);
+            if end - k >= LANE_MIN_GROUP {
+                self.accumulate_group(k..end, data, &mut lanes, &mut scratch, &mut ws, &mut acc)?;
+                k = end;
+            } else {
+                self.accumulate_sequence(k, data, &mut ws, &mut acc)?;
+                k += 1;
+            }
         }
         Ok(acc)
+    }
+
+    /// Diagnostics of the E-step's paths (for benchmarks, not a stable
+    /// interface): how many sequences the lane form finished, how many it
+    /// handed back to the per-sequence path, and the per-sequence path's
+    /// forward and backward steps in their fast and general forms. Runs the
+    /// E-step's recursions once, on the current thread, without statistics.
+    #[doc(hidden)]
+    pub fn step_counts(&self, data: &SequenceSet) -> Result<StepCounts> {
+        let mut counts = StepCounts::default();
+        let mut ws = PosteriorWorkspace::new(self);
+        let mut lanes = LaneWorkspace::new(self);
+        let mut scratch = GroupScratch::default();
+        let s = self.n_states();
+        let one = |k: usize, ws: &mut PosteriorWorkspace| -> Result<()> {
+            let seq = data.get(k);
+            self.emission
+                .log_density_into(seq, ws.log_b_for(seq.len()))
+                .map_err(|e| HmmError::from(e).in_sequence(k))?;
+            ws.run().map_err(|e| e.in_sequence(k))?;
+            Ok(())
+        };
+        for range in blocks(data) {
+            let mut k = range.start;
+            while k < range.end {
+                let end = self.group_end(&lanes, data, k, range.end);
+                if end - k < LANE_MIN_GROUP {
+                    one(k, &mut ws)?;
+                    counts.per_sequence += 1;
+                    k += 1;
+                    continue;
+                }
+                scratch.lens.clear();
+                scratch.lens.extend((k..end).map(|q| data.get(q).len()));
+                lanes.begin(&scratch.lens);
+                for (l, q) in (k..end).enumerate() {
+                    let seq = data.get(q);
+                    scratch.log_b.resize(seq.len() * s, 0.0);
+                    self.emission.log_density_into(seq, &mut scratch.log_b)?;
+                    lanes.load(l, &scratch.log_b);
+                }
+                let ok = lanes.run();
+                for (l, q) in (k..end).enumerate() {
+                    if ok[l] {
+                        counts.lanes += 1;
+                    } else {
+                        counts.lanes_redone += 1;
+                        one(q, &mut ws)?;
+                    }
+                }
+                k = end;
+            }
+        }
+        let [ff, fg, bf, bg] = ws.step_counts();
+        counts.forward_fast = ff;
+        counts.forward_general = fg;
+        counts.backward_fast = bf;
+        counts.backward_general = bg;
+        Ok(counts)
+    }
+
+    /// The end of the lane group that starts at sequence `k` (`k` itself
+    /// when the model or the sequence does not admit the lane form).
+    fn group_end(&self, lanes: &LaneWorkspace, data: &SequenceSet, k: usize, end: usize) -> usize {
+        let mut e = k;
+        if lanes.usable() {
+            while e < end && e - k < LANE_WIDTH && data.get(e).len() <= LANE_MAX_FRAMES {
+                e += 1;
+            }
+        }
+        e
     }
 
     /// The E-step over all sequences, in parallel on the current rayon pool;
@@ -222,9 +411,15 @@ impl<E: Emission> Hmm<E> {
     /// grouping of the work over threads changes no bit. On one thread (or
     /// with one block) the blocks run in place, without the pool.
     pub fn expected_statistics(&self, data: &SequenceSet) -> Result<ExpectedStatistics<E::Stats>> {
+        self.e_step(data, false)
+    }
+
+    /// [`Hmm::expected_statistics`], on the current thread alone when
+    /// `serial` (the same bits: the blocks are merged in order either way).
+    fn e_step(&self, data: &SequenceSet, serial: bool) -> Result<ExpectedStatistics<E::Stats>> {
         let ranges = blocks(data);
         let parts: Vec<Result<ExpectedStatistics<E::Stats>>> =
-            if ranges.len() == 1 || rayon::current_num_threads() == 1 {
+            if serial || ranges.len() == 1 || rayon::current_num_threads() == 1 {
                 ranges
                     .into_iter()
                     .map(|range| self.block_statistics(range, data))
@@ -590,9 +785,17 @@ impl BaumWelch {
         }
     }
 
+    /// Runs `f` on the dedicated pool of [`BaumWelch::threads`]; with one
+    /// thread, on the calling thread (no pool to start: the E-step then runs
+    /// serially, [`BaumWelch::serial`]).
+    /// Whether the E-step runs on the calling thread alone (`threads(1)`).
+    fn serial(&self) -> bool {
+        self.threads == Some(1)
+    }
+
     fn in_pool<T: Send>(&self, f: impl FnOnce() -> Result<T> + Send) -> Result<T> {
         match self.threads {
-            None => f(),
+            None | Some(1) => f(),
             Some(n) => rayon::ThreadPoolBuilder::new()
                 .num_threads(n)
                 .build()
@@ -655,7 +858,7 @@ impl BaumWelch {
             let mut m_steps = Vec::new();
             let mut converged = false;
             loop {
-                let stats = hmm.expected_statistics(data)?;
+                let stats = hmm.e_step(data, self.serial())?;
                 let ll = stats.log_likelihood;
                 let obj = ll + hmm.emission.log_prior(&self.regularisation);
                 // Test the gain of what EM increases: the penalised objective

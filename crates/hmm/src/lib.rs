@@ -70,7 +70,7 @@ pub use error::{HmmError, Result};
 pub use filter::ForwardFilter;
 pub use fit::{
     default_regularisation, BaumWelch, BaumWelchBuilder, Convergence, ExpectedStatistics, HmmFit,
-    HmmFitReport, Update, DEFAULT_ADDED_DIAGONAL,
+    HmmFitReport, StepCounts, Update, DEFAULT_ADDED_DIAGONAL,
 };
 pub use inference::{Forward, Posteriors, ViterbiPath};
 pub use init::{initialise, kbins_edges, HmmInit};

@@ -200,7 +200,18 @@ impl Gaussian {
                 }
             }
             CovarianceType::Diagonal | CovarianceType::Spherical => {
-                let s = self.n_states;
+                let (s, d) = (self.n_states, self.dim);
+                match d {
+                    1 => return self.diagonal_log_density_small::<1>(frames, out),
+                    2 => return self.diagonal_log_density_small::<2>(frames, out),
+                    3 => return self.diagonal_log_density_small::<3>(frames, out),
+                    4 => return self.diagonal_log_density_small::<4>(frames, out),
+                    _ => {}
+                }
+                if s * d <= DIAG_LANES_MAX {
+                    self.diagonal_log_density(frames, out);
+                    return;
+                }
                 for (x, row) in frames.iter().zip(out.chunks_exact_mut(s)) {
                     for (i, o) in row.iter_mut().enumerate() {
                         *o = self.log_density_raw(i, x);
@@ -209,7 +220,84 @@ impl Gaussian {
             }
         }
     }
+
+    /// Diagonal/spherical log-densities for `D` ≤ 4 known at compile time:
+    /// state by state, the frames in the lanes; for every frame and state
+    /// exactly the arithmetic of [`Gaussian::log_density_raw`].
+    fn diagonal_log_density_small<const D: usize>(&self, frames: Frames<'_>, out: &mut [f64]) {
+        let s = self.n_states;
+        let (x, _) = frames.as_slice().as_chunks::<D>();
+        for i in 0..s {
+            let mut mu = [0.0; D];
+            let mut w = [0.0; D];
+            for k in 0..D {
+                mu[k] = self.means[i * D + k];
+                w[k] = match self.kind {
+                    CovarianceType::Spherical => self.whiten[i],
+                    _ => self.whiten[i * D + k],
+                };
+            }
+            let ln = self.log_norm[i];
+            linalg::dispatch(
+                #[inline(always)]
+                || {
+                    for (xt, o) in x.iter().zip(out[i..].iter_mut().step_by(s)) {
+                        let mut m = 0.0;
+                        for k in 0..D {
+                            let e = (xt[k] - mu[k]) * w[k];
+                            m += e * e;
+                        }
+                        *o = ln - 0.5 * m;
+                    }
+                },
+            );
+        }
+    }
+
+    /// Diagonal/spherical log-densities with the states in the lanes
+    /// (`S·D ≤ DIAG_LANES_MAX`): for every frame and state exactly the
+    /// arithmetic of [`Gaussian::log_density_raw`] (`m = Σ_k ((x_k − μ_ik)
+    /// w_ik)²` in increasing `k`, `log b = log_norm_i − ½ m`), the states of
+    /// a frame side by side instead of one after the other.
+    fn diagonal_log_density(&self, frames: Frames<'_>, out: &mut [f64]) {
+        let (s, d) = (self.n_states, self.dim);
+        // μ and the whitening scale by dimension, then state.
+        let mut mu = [0.0; DIAG_LANES_MAX];
+        let mut w = [0.0; DIAG_LANES_MAX];
+        for i in 0..s {
+            for k in 0..d {
+                mu[k * s + i] = self.means[i * d + k];
+                w[k * s + i] = match self.kind {
+                    CovarianceType::Spherical => self.whiten[i],
+                    _ => self.whiten[i * d + k],
+                };
+            }
+        }
+        let (mu, w, log_norm) = (&mu[..s * d], &w[..s * d], &self.log_norm[..s]);
+        linalg::dispatch(
+            #[inline(always)]
+            || {
+                for (x, row) in frames.iter().zip(out.chunks_exact_mut(s)) {
+                    row.fill(0.0);
+                    for ((xk, mk), wk) in x.iter().zip(mu.chunks_exact(s)).zip(w.chunks_exact(s)) {
+                        for ((o, m), c) in row.iter_mut().zip(mk).zip(wk) {
+                            let e = (xk - m) * c;
+                            *o += e * e;
+                        }
+                    }
+                    for (o, ln) in row.iter_mut().zip(log_norm) {
+                        *o = ln - 0.5 * *o;
+                    }
+                }
+            },
+        )
+    }
 }
+
+/// The largest `S·D` of a diagonal or spherical Gaussian whose kernels run
+/// with the states in the lanes (parameters and statistics transposed into
+/// buffers on the stack).
+pub(super) const DIAG_LANES_MAX: usize = 256;
 
 /// Calls `f(x − μ)`, using a stack buffer for `D ≤ 64`.
 #[inline]

@@ -1,7 +1,7 @@
 //! The Gaussian's sufficient statistics (about per-state reference points,
 //! merged exactly) and its M-step with regularisation and jitter.
 
-use super::kernels::counts;
+use super::kernels::{counts, DIAG_LANES_MAX};
 use super::Gaussian;
 use crate::error::{EmissionError, Result};
 use crate::regularisation::{
@@ -58,6 +58,30 @@ impl Gaussian {
             self.accumulate_full(frames, weights, stats);
             return;
         }
+        match d {
+            1 => return Self::accumulate_diagonal_small::<1>(s, frames, weights, stats),
+            2 => return Self::accumulate_diagonal_small::<2>(s, frames, weights, stats),
+            3 => return Self::accumulate_diagonal_small::<3>(s, frames, weights, stats),
+            4 => return Self::accumulate_diagonal_small::<4>(s, frames, weights, stats),
+            _ => {}
+        }
+        if s * d <= DIAG_LANES_MAX {
+            Self::accumulate_diagonal(s, d, frames, weights, stats);
+            return;
+        }
+        Self::accumulate_diagonal_reference(s, d, frames, weights, stats);
+    }
+
+    /// The diagonal/spherical statistics state by state, frame by frame (the
+    /// definition the faster forms are tested against, and the form for
+    /// `D > 4` with `S·D > DIAG_LANES_MAX`).
+    pub(super) fn accumulate_diagonal_reference(
+        s: usize,
+        d: usize,
+        frames: Frames<'_>,
+        weights: &[f64],
+        stats: &mut GaussianStats,
+    ) {
         for i in 0..s {
             let c = &stats.shift[i * d..(i + 1) * d];
             let sum = &mut stats.sum[i * d..(i + 1) * d];
@@ -82,6 +106,127 @@ impl Gaussian {
                 }
             }
             stats.weight[i] += n;
+        }
+    }
+
+    /// The diagonal/spherical statistics for `D ≤ 4` known at compile time:
+    /// exactly the loop of [`Gaussian::accumulate_complete`] (state by state,
+    /// frame by frame), with the state's running sums in registers and
+    /// selects instead of a branch on the weight.
+    pub(super) fn accumulate_diagonal_small<const D: usize>(
+        s: usize,
+        frames: Frames<'_>,
+        weights: &[f64],
+        stats: &mut GaussianStats,
+    ) {
+        let (x, _) = frames.as_slice().as_chunks::<D>();
+        for i in 0..s {
+            let r = i * D..(i + 1) * D;
+            let c: [f64; D] = stats.shift[r.clone()].try_into().expect("D values");
+            let mut sum: [f64; D] = stats.sum[r.clone()].try_into().expect("D values");
+            let mut q: [f64; D] = stats.sum_sq[r.clone()].try_into().expect("D values");
+            let mut lo: [f64; D] = stats.lo[r.clone()].try_into().expect("D values");
+            let mut hi: [f64; D] = stats.hi[r.clone()].try_into().expect("D values");
+            let mut n = 0.0;
+            crate::linalg::dispatch(
+                #[inline(always)]
+                || {
+                    for (xt, w) in x.iter().zip(weights[i..].iter().step_by(s)) {
+                        let on = counts(*w);
+                        n = if on { n + w } else { n };
+                        for k in 0..D {
+                            let e = xt[k] - c[k];
+                            lo[k] = if on { lo[k].min(xt[k]) } else { lo[k] };
+                            hi[k] = if on { hi[k].max(xt[k]) } else { hi[k] };
+                            sum[k] = if on { sum[k] + w * e } else { sum[k] };
+                            q[k] = if on { q[k] + w * e * e } else { q[k] };
+                        }
+                    }
+                },
+            );
+            stats.sum[r.clone()].copy_from_slice(&sum);
+            stats.sum_sq[r.clone()].copy_from_slice(&q);
+            stats.lo[r.clone()].copy_from_slice(&lo);
+            stats.hi[r].copy_from_slice(&hi);
+            stats.weight[i] += n;
+        }
+    }
+
+    /// The diagonal/spherical statistics with the states in the lanes
+    /// (`S·D ≤ DIAG_LANES_MAX`): for every state exactly the arithmetic of
+    /// the loop of [`Gaussian::accumulate_complete`] (over the frames whose
+    /// weight counts, in frame order: `n ← n + w`, the range, `e = x − c`,
+    /// `s ← s + w·e`, `q ← q + w·e·e`), the states of a frame side by side.
+    pub(super) fn accumulate_diagonal(
+        s: usize,
+        d: usize,
+        frames: Frames<'_>,
+        weights: &[f64],
+        stats: &mut GaussianStats,
+    ) {
+        // Statistics by dimension, then state.
+        let z = [0.0; DIAG_LANES_MAX];
+        let (mut c, mut sum, mut q, mut lo, mut hi) = (z, z, z, z, z);
+        for i in 0..s {
+            for k in 0..d {
+                let (from, to) = (i * d + k, k * s + i);
+                c[to] = stats.shift[from];
+                sum[to] = stats.sum[from];
+                q[to] = stats.sum_sq[from];
+                lo[to] = stats.lo[from];
+                hi[to] = stats.hi[from];
+            }
+        }
+        let n = s * d;
+        let (c, sum_t, q_t, lo_t, hi_t) = (
+            &c[..n],
+            &mut sum[..n],
+            &mut q[..n],
+            &mut lo[..n],
+            &mut hi[..n],
+        );
+        // This call's weight per state, from 0 (added to the total at the end).
+        let mut count = [0.0; DIAG_LANES_MAX];
+        let weight = &mut count[..s];
+        crate::linalg::dispatch(
+            #[inline(always)]
+            || {
+                for (x, wt) in frames.iter().zip(weights.chunks_exact(s)) {
+                    for (nw, w) in weight.iter_mut().zip(wt) {
+                        *nw = if counts(*w) { *nw + w } else { *nw };
+                    }
+                    for (k, xk) in x.iter().enumerate() {
+                        let r = k * s..(k + 1) * s;
+                        for (((((ck, sk), qk), lk), hk), w) in c[r.clone()]
+                            .iter()
+                            .zip(&mut sum_t[r.clone()])
+                            .zip(&mut q_t[r.clone()])
+                            .zip(&mut lo_t[r.clone()])
+                            .zip(&mut hi_t[r])
+                            .zip(wt)
+                        {
+                            let on = counts(*w);
+                            let e = xk - ck;
+                            *lk = if on { lk.min(*xk) } else { *lk };
+                            *hk = if on { hk.max(*xk) } else { *hk };
+                            *sk = if on { *sk + w * e } else { *sk };
+                            *qk = if on { *qk + w * e * e } else { *qk };
+                        }
+                    }
+                }
+            },
+        );
+        for (total, n) in stats.weight.iter_mut().zip(&count[..s]) {
+            *total += n;
+        }
+        for i in 0..s {
+            for k in 0..d {
+                let (to, from) = (i * d + k, k * s + i);
+                stats.sum[to] = sum_t[from];
+                stats.sum_sq[to] = q_t[from];
+                stats.lo[to] = lo_t[from];
+                stats.hi[to] = hi_t[from];
+            }
         }
     }
 
@@ -411,4 +556,132 @@ pub fn weighted_mean_covariance(
         }
     }
     Ok((mean, cov / n))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::linalg::{with_simd_level, SimdLevel};
+    use crate::Emission;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    fn bits(v: &[f64]) -> Vec<u64> {
+        v.iter().map(|x| x.to_bits()).collect()
+    }
+
+    /// The diagonal/spherical statistics and log-densities of every form
+    /// (`D ≤ 4` known at compile time; the states in the lanes; the
+    /// per-state loop) are the per-state definitions to the bit, at every
+    /// instruction-set level, with weights that do not count (0, below
+    /// `NEGLIGIBLE_WEIGHT`), accumulating onto earlier statistics.
+    #[test]
+    fn diagonal_forms_equal_the_per_state_definitions() {
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        for (s, d) in [
+            (1, 1),
+            (2, 1),
+            (3, 2),
+            (7, 3),
+            (10, 4),
+            (5, 5),
+            (9, 7),
+            (40, 7),
+        ] {
+            for spherical in [false, true] {
+                let means: Vec<f64> = (0..s * d).map(|_| rng.random_range(-1.0..1.0)).collect();
+                let g = if spherical {
+                    let v: Vec<f64> = (0..s).map(|_| rng.random_range(0.5..2.0)).collect();
+                    Gaussian::spherical(d, means, v).unwrap()
+                } else {
+                    let v: Vec<f64> = (0..s * d).map(|_| rng.random_range(0.5..2.0)).collect();
+                    Gaussian::diagonal(d, means, v).unwrap()
+                };
+                let t_len = 57;
+                let x: Vec<f64> = (0..t_len * d)
+                    .map(|_| rng.random_range(-3.0..3.0))
+                    .collect();
+                let frames = Frames::new(&x, d).unwrap();
+                let w: Vec<f64> = (0..t_len * s)
+                    .map(|k| match k % 7 {
+                        0 => 0.0,
+                        1 => 1e-200,
+                        _ => rng.random_range(0.0..1.0),
+                    })
+                    .collect();
+                for level in [SimdLevel::Portable, SimdLevel::Avx2Fma, SimdLevel::Avx512] {
+                    with_simd_level(level, || {
+                        // Log-densities against the one-frame definition.
+                        let mut out = vec![0.0; t_len * s];
+                        g.log_density_into(frames, &mut out).unwrap();
+                        for (t, row) in out.chunks_exact(s).enumerate() {
+                            for (i, v) in row.iter().enumerate() {
+                                let want = g.log_density_raw(i, frames.frame(t));
+                                assert_eq!(v.to_bits(), want.to_bits(), "S {s} D {d} t {t} i {i}");
+                            }
+                        }
+                        // Statistics, twice over (onto earlier sums), every form.
+                        let mut want = g.new_stats();
+                        let mut forms = [g.new_stats(), g.new_stats(), g.new_stats()];
+                        for _ in 0..2 {
+                            Gaussian::accumulate_diagonal_reference(s, d, frames, &w, &mut want);
+                            g.accumulate(frames, &w, &mut forms[0]).unwrap();
+                            if s * d <= DIAG_LANES_MAX {
+                                Gaussian::accumulate_diagonal(s, d, frames, &w, &mut forms[1]);
+                            } else {
+                                Gaussian::accumulate_diagonal_reference(
+                                    s,
+                                    d,
+                                    frames,
+                                    &w,
+                                    &mut forms[1],
+                                );
+                            }
+                            match d {
+                                1 => Gaussian::accumulate_diagonal_small::<1>(
+                                    s,
+                                    frames,
+                                    &w,
+                                    &mut forms[2],
+                                ),
+                                2 => Gaussian::accumulate_diagonal_small::<2>(
+                                    s,
+                                    frames,
+                                    &w,
+                                    &mut forms[2],
+                                ),
+                                3 => Gaussian::accumulate_diagonal_small::<3>(
+                                    s,
+                                    frames,
+                                    &w,
+                                    &mut forms[2],
+                                ),
+                                4 => Gaussian::accumulate_diagonal_small::<4>(
+                                    s,
+                                    frames,
+                                    &w,
+                                    &mut forms[2],
+                                ),
+                                _ => Gaussian::accumulate_diagonal_reference(
+                                    s,
+                                    d,
+                                    frames,
+                                    &w,
+                                    &mut forms[2],
+                                ),
+                            }
+                        }
+                        for (f, got) in forms.iter().enumerate() {
+                            let m = format!("S {s} D {d} spherical {spherical} form {f}");
+                            assert_eq!(bits(&got.weight), bits(&want.weight), "{m}");
+                            assert_eq!(bits(&got.sum), bits(&want.sum), "{m}");
+                            assert_eq!(bits(&got.sum_sq), bits(&want.sum_sq), "{m}");
+                            assert_eq!(bits(&got.lo), bits(&want.lo), "{m}");
+                            assert_eq!(bits(&got.hi), bits(&want.hi), "{m}");
+                        }
+                    });
+                }
+            }
+        }
+    }
 }

@@ -4,6 +4,7 @@
 //! * `norms`: squared norms `‖W v‖²` (the Mahalanobis distances of the Gaussian log-densities);
 //! * `lanes`: sums of lane-wise partial sums in a fixed order;
 //! * `exp`: the vectorised `exp` of a slice and the log-sum-exp;
+//! * `ln`: a logarithm whose lanes vectorise (fdlibm's algorithm, within 1 ulp);
 //! * `dispatch`: which instruction set the kernels run with, chosen once at run time.
 //!
 //! Every kernel is plain Rust whose SIMD lanes do exactly the arithmetic of
@@ -14,14 +15,17 @@
 mod dispatch;
 mod exp;
 mod lanes;
+mod ln;
 mod norms;
 mod packed;
 
 pub use dispatch::{dispatch, simd_level, with_simd_level, SimdLevel};
 pub use exp::{
-    exp_in_place, exp_in_place_portable, exp_or_zero, exp_slice, log_sum_exp, EXP_UNDERFLOW,
+    exp_in_place, exp_in_place_portable, exp_lanes, exp_or_zero, exp_slice, log_sum_exp,
+    EXP_UNDERFLOW,
 };
 pub use lanes::reduce_lanes;
+pub use ln::{ln, ln_lanes, LN_LANES};
 pub use norms::{packed_lower_sq_norm, sq_norms_lanes, STATE_LANES};
 pub use packed::{
     cholesky, lower_triangular_inverse, pack_lower, packed_len, packed_lower_mul, packed_row,

@@ -51,9 +51,10 @@ pub(crate) struct BackwardCore {
     alive: Vec<bool>,
     all_alive: bool,
     log_mode: bool,
-    /// Frames that took the fast form (tests check that it runs).
-    #[cfg(test)]
-    fast_steps: usize,
+    /// Frames that took the fast form and the general form (diagnostics:
+    /// tests check that the fast form runs, `Hmm::step_counts` reports them).
+    pub(crate) fast_steps: usize,
+    pub(crate) general_steps: usize,
     // Scratch.
     carry: Vec<bool>,
     w: Vec<f64>,
@@ -82,8 +83,8 @@ impl BackwardCore {
             alive: vec![true; s],
             all_alive: true,
             log_mode: false,
-            #[cfg(test)]
             fast_steps: 0,
+            general_steps: 0,
             carry: vec![false; s],
             w: vec![f64::NEG_INFINITY; s],
             terms: vec![0.0; s],
@@ -123,13 +124,11 @@ impl BackwardCore {
                 _ => self.fast_step_dyn(log_b, u, next),
             };
             if fast {
-                #[cfg(test)]
-                {
-                    self.fast_steps += 1;
-                }
+                self.fast_steps += 1;
                 return true;
             }
         }
+        self.general_steps += 1;
         self.general_step(log_b, u, next)
     }
 

@@ -34,7 +34,7 @@ use super::kernels::{
     scale_lanes, sum_lanes, vec_mat, vec_mat_dyn, Lanes, PAD_LOG_B, RESCALE, SAFE, W,
 };
 use crate::model::Hmm;
-use phasekit_emission::linalg::{dispatch, exp_slice, log_sum_exp};
+use phasekit_emission::linalg::{dispatch, exp_slice, ln, log_sum_exp};
 use phasekit_emission::Emission;
 
 /// The forward recursion between two frames (see the module documentation).
@@ -67,9 +67,10 @@ pub(crate) struct ForwardCore {
     /// Every entry of `reachable` is true.
     all_reachable: bool,
     log_mode: bool,
-    /// Frames that took the fast form (tests check that it runs).
-    #[cfg(test)]
-    fast_steps: usize,
+    /// Frames that took the fast form and the general form (diagnostics:
+    /// tests check that the fast form runs, `Hmm::step_counts` reports them).
+    pub(crate) fast_steps: usize,
+    pub(crate) general_steps: usize,
     // Scratch.
     alive: Vec<bool>,
     reach_next: Vec<bool>,
@@ -108,8 +109,8 @@ impl ForwardCore {
             reachable: vec![false; s],
             all_reachable: false,
             log_mode: false,
-            #[cfg(test)]
             fast_steps: 0,
+            general_steps: 0,
             alive: vec![false; s],
             reach_next: vec![false; s],
             pred_next: vec![[0.0; W]; c],
@@ -174,13 +175,11 @@ impl ForwardCore {
                 _ => self.fast_step_dyn(log_b, h),
             };
             if let Some(lc) = fast {
-                #[cfg(test)]
-                {
-                    self.fast_steps += 1;
-                }
+                self.fast_steps += 1;
                 return lc;
             }
         }
+        self.general_steps += 1;
         self.general_step(log_b, h)
     }
 
@@ -217,7 +216,7 @@ impl ForwardCore {
         }
         h.copy_from_slice(&o);
         self.pred.copy_from_slice(&next);
-        Some(m + c.ln())
+        Some(m + ln(c))
     }
 
     /// [`ForwardCore::fast_step`] for more than four chunks (through memory).
@@ -249,7 +248,7 @@ impl ForwardCore {
             return None;
         }
         std::mem::swap(&mut self.pred, &mut self.pred_next);
-        Some(m + c.ln())
+        Some(m + ln(c))
     }
 
     /// `out_j = pred_j e^{log b_j − m}` over the possible states (0
@@ -321,7 +320,7 @@ impl ForwardCore {
             for v in h_padded.as_flattened_mut() {
                 *v *= inv;
             }
-            m + c.ln()
+            m + ln(c)
         };
         let h = &h_padded.as_flattened()[..s];
 

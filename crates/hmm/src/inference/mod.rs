@@ -22,11 +22,13 @@
 mod backward;
 pub mod formulas;
 mod forward;
+mod interleaved;
 mod kernels;
 mod posteriors;
 mod viterbi;
 
 pub(crate) use forward::ForwardCore;
+pub(crate) use interleaved::{LaneWorkspace, MAX_FRAMES as LANE_MAX_FRAMES};
 pub(crate) use posteriors::PosteriorWorkspace;
 pub use viterbi::ViterbiPath;
 

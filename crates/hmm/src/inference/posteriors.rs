@@ -74,6 +74,18 @@ impl PosteriorWorkspace {
         }
     }
 
+    /// Steps of the forward and backward recursions so far, in their fast
+    /// and general forms: `[forward fast, forward general, backward fast,
+    /// backward general]`.
+    pub(crate) fn step_counts(&self) -> [usize; 4] {
+        [
+            self.forward.fast_steps,
+            self.forward.general_steps,
+            self.backward.fast_steps,
+            self.backward.general_steps,
+        ]
+    }
+
     /// Sizes the buffers for `t_len` frames and returns `log_b` to fill.
     pub(crate) fn log_b_for(&mut self, t_len: usize) -> &mut [f64] {
         self.log_b.resize(t_len * self.s, 0.0);
