@@ -148,6 +148,12 @@ def test_inputs_options_pickle_and_errors(folder):
     s = InteractionModel("hmm:reg-rel=5e-2", states=3, seed=1).fit(frames, human=["p1_*"], robot=["p2_*"])
     np.testing.assert_array_equal(r.predict(test).mean, s.predict(test).mean)
     assert not np.array_equal(r.predict(test).mean, InteractionModel("hmm", states=3, reg=5e-2, seed=1).fit(frames, human=["p1_*"], robot=["p2_*"]).predict(test).mean)
+    # reg_units="positions" is the method key reg-pos, to the bit, and differs
+    # from "relative" (the velocities are regularised by their positions' variances).
+    q = InteractionModel("hmm", states=3, reg=5e-2, reg_units="positions", seed=1).fit(frames, human=["p1_*"], robot=["p2_*"])
+    t = InteractionModel("hmm:reg-pos=5e-2", states=3, seed=1).fit(frames, human=["p1_*"], robot=["p2_*"])
+    np.testing.assert_array_equal(q.predict(test).mean, t.predict(test).mean)
+    assert not np.array_equal(q.predict(test).mean, r.predict(test).mean)
     with pytest.raises(ValueError, match="no column matches `nose_\\*`"):
         InteractionModel("hmm").fit(frames, human=["nose_*"], robot=["p2_*"])
     with pytest.raises(ValueError, match="needs the human's column `p1_wrist_x`"):

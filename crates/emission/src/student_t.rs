@@ -455,9 +455,7 @@ impl StudentT {
             let constant: f64 = by_dims
                 .iter()
                 .map(|&(p, sw)| {
-                    sw * (libm::lgamma(0.5 * (nu + p))
-                        - libm::lgamma(0.5 * nu)
-                        - 0.5 * p * nu.ln())
+                    sw * (libm::lgamma(0.5 * (nu + p)) - libm::lgamma(0.5 * nu) - 0.5 * p * nu.ln())
                 })
                 .sum();
             constant

@@ -538,7 +538,8 @@ fn calibrate(
         Calibration::Frames => 1.0,
         Calibration::Demonstrations => {
             let groups: Vec<&[f64]> = groups.iter().map(Vec::as_slice).collect();
-            // One held-out demonstration has nothing to be left out of: pooled.
+            // Where it cannot be computed (a single held-out demonstration, a
+            // left-out quantile of zero), the pooled factor.
             demonstration_inflation(&groups, COVERAGE_LEVEL).unwrap_or(1.0)
         }
     };

@@ -113,9 +113,11 @@ impl Roles {
         for &(v, x) in &velocities {
             match (side(v), side(x)) {
                 (Some(a), Some(b)) if a == b && v != x => {}
-                _ => return bad(format!(
+                _ => {
+                    return bad(format!(
                     "velocity {v} of position {x}: both must be dims of the same side, and differ"
-                )),
+                ))
+                }
             }
             if seen.contains(&v) {
                 return bad(format!("dimension {v} is in two velocity pairs"));

@@ -209,7 +209,10 @@ fn the_widening_is_the_left_out_rule_on_the_held_out_frames_of_each_demonstratio
         .unwrap();
     let c = summary.covariance_calibration.unwrap();
     assert_eq!(c.demonstration_inflation, lambda);
-    assert!((c.scale - pooled * lambda).abs() <= 1e-12 * c.scale, "{c:?}");
+    assert!(
+        (c.scale - pooled * lambda).abs() <= 1e-12 * c.scale,
+        "{c:?}"
+    );
     // The demonstration unlike the others shows: the factor is widened.
     assert!(lambda > 1.2, "{lambda}");
 }

@@ -859,4 +859,24 @@ mod tests {
             "data_units_2_squared"
         );
     }
+    #[test]
+    fn a_row_reads_back_what_it_wrote_undefined_values_included() {
+        // The constant baseline has no coverage or NLPD: NaN, written as
+        // `null`, read back as NaN (it used to be a parse error).
+        let mut row = baseline_row("wave", 12.5);
+        row.per_seed_coverage = vec![Some(0.9), None];
+        row.per_seed_nlpd = vec![Some(3.0), None];
+        row.per_seed_covariance_scale = vec![Some(1.5), None];
+        let json = serde_json::to_string(&row).unwrap();
+        assert!(json.contains("\"coverage_mean\":null"), "{json}");
+        let back: Row = serde_json::from_str(&json).unwrap();
+        assert!(back.coverage_mean.is_nan() && back.nlpd_std.is_nan());
+        assert_eq!(back.per_seed_coverage, row.per_seed_coverage);
+        assert_eq!(back.per_seed_nlpd, row.per_seed_nlpd);
+        assert_eq!(
+            back.per_seed_covariance_scale,
+            row.per_seed_covariance_scale
+        );
+        assert_eq!(back.mse_mean, 12.5);
+    }
 }
