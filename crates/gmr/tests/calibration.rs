@@ -324,7 +324,7 @@ fn demonstration_inflation_makes_the_calibration_transfer_to_new_demonstrations(
         let (mut pooled, mut widened, mut lambdas) = (0.0, 0.0, 0.0);
         let reps = 400;
         for _ in 0..reps {
-            let mut demonstration = |rng: &mut ChaCha8Rng| {
+            let demonstration = |rng: &mut ChaCha8Rng| {
                 let z: f64 = StandardNormal.sample(rng);
                 scaled_chi_squared(rng, (sigma * z).exp(), 3, 100)
             };
