@@ -316,7 +316,7 @@ states=auto (--states auto) chooses the base states over 2..=max-states by BIC,
 or by G-means with select=gmeans (hmm, tsc-hmm*: λ's states; gmm-tsc: its mixture).
 auto chooses the family, states, reg and emission by cross-validated prediction error
 on the training demonstrations (keys: grid=small|default|relative|positions|mixed, folds=K,
-families=hmm+tsc-hmm+gmm, halving=on|off, calibrate=on|frames|off: its 95 % regions widened to
+families=hmm+tsc-hmm+gmm, halving=on|off, calibrate=on|demonstrations|frames|off (on = demonstrations): its 95 % regions widened to
 cover 95 % of a left-out demonstration, or of the pooled held-out frames; reg-units=relative
 makes every candidate's reg relative); fit --format md shows its cross-validation table.";
 

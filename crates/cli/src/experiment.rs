@@ -334,13 +334,17 @@ pub struct Row {
     pub action: String,
     /// Method label.
     pub method: String,
-    /// Mean over seeds of the MSE (unit²).
+    /// Mean over seeds of the MSE (unit²); NaN (`null` in JSON) when every seed failed.
+    #[serde(deserialize_with = "nan_if_null")]
     pub mse_mean: f64,
     /// Population std over seeds of the MSE.
+    #[serde(deserialize_with = "nan_if_null")]
     pub mse_std: f64,
     /// Mean over seeds of √MSE (unit).
+    #[serde(deserialize_with = "nan_if_null")]
     pub rmse_mean: f64,
     /// Population std over seeds of √MSE.
+    #[serde(deserialize_with = "nan_if_null")]
     pub rmse_std: f64,
     /// Seeds that succeeded.
     pub seeds: usize,

@@ -374,7 +374,7 @@ impl ModelFile {
             return Err(CliError::new(format!(
                 "version {} does not describe its model and settings (they need version {} or later: \
                  an hsmm model, non-Gaussian mixtures or a relative regularisation 2, a covariance \
-                 calibrated by left-out demonstrations 3)",
+                 calibrated by left-out demonstrations or a regularisation in positions' variances 3)",
                 self.version,
                 version_for(&self.model, &self.method.settings)
             )));

@@ -211,11 +211,15 @@ fn per_seed(args: &[&str], data: &std::path::Path) -> Vec<(String, Vec<f64>)> {
 fn evaluate_gives_the_same_numbers_with_and_without_standardise() {
     // The same demonstrations, each feature z-scored by --standardise: reg-pos
     // fits the same model (to rounding), so every seed's MSE is the same;
-    // the absolute and the plain relative units with this amount do not agree.
+    // the absolute unit with this amount does not agree.
     let (_dir, data) = interaction_folder(8, 4, 6, plain);
     let methods = "hmm:states=5,reg-pos=0.1,hmm:states=5,reg=0.001";
     let metres = per_seed(&["--methods", methods], &data);
     let z = per_seed(&["--methods", methods, "--standardise"], &data);
+    let names = |rows: &[(String, Vec<f64>)]| rows.iter().map(|r| r.0.clone()).collect::<Vec<_>>();
+    assert_eq!(metres.len(), 2, "{:?}", names(&metres));
+    assert_eq!(names(&metres), names(&z));
+    assert!(metres.iter().all(|(_, mse)| !mse.is_empty()));
     for ((name, a), (_, b)) in metres.iter().zip(&z) {
         let worst = a
             .iter()
@@ -228,4 +232,35 @@ fn evaluate_gives_the_same_numbers_with_and_without_standardise() {
             assert!(worst > 1e-3, "{name}: only {worst:e}");
         }
     }
+}
+
+#[test]
+fn the_fit_report_names_the_positions_unit() {
+    let (dir, data) = interaction_folder(5, 4, 6, plain);
+    let out = dir.path().join("pos.json");
+    let report = |format: &str| {
+        let o = phasekit()
+            .args([
+                "fit",
+                "--method",
+                "hmm:reg-pos=0.2",
+                "--format",
+                format,
+                "--data",
+            ])
+            .arg(&data)
+            .arg("-o")
+            .arg(&out)
+            .assert()
+            .success()
+            .get_output()
+            .stdout
+            .clone();
+        String::from_utf8(o).unwrap()
+    };
+    let json: serde_json::Value = serde_json::from_str(&report("json")).unwrap();
+    assert_eq!(json["regularisation_unit"], "positions");
+    assert_eq!(json["regularisation"], 0.2);
+    let text = report("md");
+    assert!(text.contains("each position's variance"), "{text}");
 }

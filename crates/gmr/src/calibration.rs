@@ -218,8 +218,10 @@ pub fn score_gaussian(
 ///
 /// since `m² / c ≤ χ²_level(p)` exactly when `m² ≤ q`: after scaling, at least
 /// `level · n` of the frames are inside, and any smaller `c` leaves fewer.
-/// A calibration fitted on held-out frames (cross-validation folds) transfers
-/// the coverage to new demonstrations; the mean is unchanged.
+/// Fitted on held-out frames (cross-validation folds), it covers new frames
+/// of demonstrations like those; a new demonstration unlike them is covered
+/// less often, which [`demonstration_inflation`] measures. The mean is
+/// unchanged.
 ///
 /// Errors with no frame, a non-finite or negative distance, `level` outside
 /// `(0, 1)`, or a quantile of zero (every frame predicted exactly: no scale
@@ -281,8 +283,9 @@ fn order_statistic(sorted: &[f64], q: f64) -> f64 {
 /// quantile, fitted on the very demonstrations it is judged on, covers a new
 /// demonstration less often than `level` — the fewer and the more unlike one
 /// another the demonstrations, the less. Leaving each one out measures that
-/// shortfall on the training demonstrations alone; `λ = 1` when the
-/// demonstrations agree (never below: the pooled factor is the least a
+/// shortfall on the training demonstrations alone; `λ` is close to 1 when
+/// the demonstrations agree (a few per cent above it from the quantiles'
+/// sampling noise; never below 1: the pooled factor is the least a
 /// calibration on these frames can claim).
 ///
 /// Errors with fewer than two non-empty groups (nothing to leave out), a
@@ -294,31 +297,38 @@ pub fn demonstration_inflation(groups: &[&[f64]], level: f64) -> Result<f64> {
             "coverage calibration: the level must lie in (0, 1), got {level}"
         )));
     }
-    let groups: Vec<&[f64]> = groups.iter().copied().filter(|g| !g.is_empty()).collect();
+    // Empty groups (a demonstration without a scored frame) are left out;
+    // errors name a demonstration by its index in `groups`.
+    let groups: Vec<(usize, &[f64])> = groups
+        .iter()
+        .copied()
+        .enumerate()
+        .filter(|(_, g)| !g.is_empty())
+        .collect();
     if groups.len() < 2 {
         return Err(GmrError::InvalidDims(
             "coverage calibration: leaving one demonstration out needs at least two".into(),
         ));
     }
-    for g in &groups {
+    for (_, g) in &groups {
         check_distances(g)?;
     }
-    let mut ratios: Vec<f64> = Vec::with_capacity(groups.iter().map(|g| g.len()).sum());
-    for d in 0..groups.len() {
+    let mut ratios: Vec<f64> = Vec::with_capacity(groups.iter().map(|(_, g)| g.len()).sum());
+    for (d, (index, group)) in groups.iter().enumerate() {
         let mut others: Vec<f64> = groups
             .iter()
             .enumerate()
             .filter(|(e, _)| *e != d)
-            .flat_map(|(_, g)| g.iter().copied())
+            .flat_map(|(_, (_, g))| g.iter().copied())
             .collect();
         others.sort_by(f64::total_cmp);
         let threshold = order_statistic(&others, level);
         if threshold <= 0.0 {
             return Err(GmrError::InvalidDims(format!(
-                "coverage calibration: without demonstration {d} the quantile of the squared distances is zero"
+                "coverage calibration: without demonstration {index} the quantile of the squared distances is zero"
             )));
         }
-        ratios.extend(groups[d].iter().map(|v| v / threshold));
+        ratios.extend(group.iter().map(|v| v / threshold));
     }
     ratios.sort_by(f64::total_cmp);
     Ok(order_statistic(&ratios, level).max(1.0))

@@ -523,11 +523,14 @@ pub fn winner(table: &[CvRow]) -> Option<usize> {
 /// (see the module's docs); `None` when they could not all be scored (the
 /// winner then predicts uncalibrated, as it would without calibration; its
 /// row's coverage is `None` too) or the rule is [`Calibration::Off`].
+/// A note for the summary's warnings is pushed on `warnings` when the rule
+/// could not be applied as asked.
 fn calibrate(
     rule: Calibration,
     row: &CvRow,
     mahalanobis2: Option<&[Vec<f64>]>,
     roles: &Roles,
+    warnings: &mut Vec<String>,
 ) -> Result<Option<CovarianceCalibration>> {
     let (Some(groups), Some(coverage), Some(nlpd)) = (mahalanobis2, row.coverage, row.nlpd) else {
         return Ok(None);
@@ -538,9 +541,19 @@ fn calibrate(
         Calibration::Frames => 1.0,
         Calibration::Demonstrations => {
             let groups: Vec<&[f64]> = groups.iter().map(Vec::as_slice).collect();
-            // Where it cannot be computed (a single held-out demonstration, a
-            // left-out quantile of zero), the pooled factor.
-            demonstration_inflation(&groups, COVERAGE_LEVEL).unwrap_or(1.0)
+            // Where it cannot be computed (a single held-out demonstration
+            // with scored frames, a left-out quantile of zero), the pooled
+            // factor, and the summary says so.
+            match demonstration_inflation(&groups, COVERAGE_LEVEL) {
+                Ok(lambda) => lambda,
+                Err(e) => {
+                    warnings.push(format!(
+                        "the covariance is calibrated on the pooled held-out frames only \
+                         (not widened for a new demonstration): {e}"
+                    ));
+                    1.0
+                }
+            }
         }
     };
     let p = roles.scored().len();
@@ -599,6 +612,7 @@ pub fn fit_cross_validated(
         &table[best],
         scored[best].mahalanobis2.as_deref(),
         roles,
+        &mut summary.warnings,
     )?;
     summary.fit_seconds = clock.elapsed().as_secs_f64();
     summary.chosen = Some(candidates[best].0.clone());

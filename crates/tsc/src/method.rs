@@ -476,7 +476,7 @@ impl Method {
     /// (`R s_j²`: a velocity regularised by its position's variance). The
     /// summary's log-likelihoods and BIC values are those of the data's units
     /// (`log p(x) = log p(x / s) − Σ_observed log s_j`), and
-    /// [`FitSummary::regularisation_per_feature`] holds `R · v_j`.
+    /// [`FitSummary::regularisation_per_feature`] holds `R · s_j²`.
     pub fn fit(&self, data: &SequenceSet, roles: &Roles) -> Result<(Model, FitSummary)> {
         let (model, mut summary) = match self.regularisation() {
             Some((reg, units @ (RegUnits::Relative | RegUnits::Positions), kind)) => {
@@ -498,7 +498,7 @@ impl Method {
     ) -> Result<(Model, FitSummary)> {
         roles.check(data.dim())?;
         let s: Vec<f64> = match units {
-            RegUnits::Positions => position_scales(data, roles),
+            RegUnits::Positions => position_scales(data, roles)?,
             _ => feature_variances(data).iter().map(|v| v.sqrt()).collect(),
         };
         // Refuse an emission the mapping cannot return before spending the fit on it.

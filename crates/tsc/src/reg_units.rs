@@ -143,7 +143,10 @@ pub fn feature_variances(data: &SequenceSet) -> Vec<f64> {
 /// (frames where the velocity, the position and the position before are all
 /// observed). A velocity whose slope is not defined or not finite and
 /// positive in magnitude (no such frame, a constant position) keeps `√v_j`.
-pub fn position_scales(data: &SequenceSet, roles: &Roles) -> Vec<f64> {
+///
+/// Errors when `roles` name a dim the data does not have.
+pub fn position_scales(data: &SequenceSet, roles: &Roles) -> Result<Vec<f64>> {
+    roles.check(data.dim())?;
     let v = feature_variances(data);
     let mut s: Vec<f64> = v.iter().map(|v| v.sqrt()).collect();
     let d = data.dim();
@@ -177,7 +180,7 @@ pub fn position_scales(data: &SequenceSet, roles: &Roles) -> Vec<f64> {
             s[u] = scale;
         }
     }
-    s
+    Ok(s)
 }
 
 /// The data with feature `j` divided by `s[j]` (missing values stay missing).

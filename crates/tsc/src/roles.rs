@@ -91,7 +91,8 @@ impl Roles {
     /// Names the velocities: `(velocity, position)` pairs of frame dims, the
     /// velocity being the first difference of the position
     /// (`v_t = x_t − x_{t−1}`, in the same or another unit). Both of one side
-    /// (the human's or the robot's), no dim in two pairs, no velocity a
+    /// (the human's or the robot's), no velocity in two pairs (a position
+    /// may have several velocities, e.g. in two units), no velocity a
     /// position of another pair.
     pub fn with_velocities(mut self, velocities: Vec<(usize, usize)>) -> Result<Roles> {
         let bad = |reason: String| {

@@ -75,10 +75,12 @@ pub struct FitSummary {
     /// covariance ([`FitSummary::covariance_scale`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub covariance_calibration: Option<CovarianceCalibration>,
-    /// With a regularisation relative to the features' variances
-    /// (`reg-units=relative`): the amount `R · v_j` the fit added to the
-    /// variance of every feature `j`, in the data's units squared (`v_j` the
+    /// With a regularisation relative to the data (`reg-units=relative` or
+    /// `positions`): the amount `R · s_j²` the fit added to the variance of
+    /// every feature `j`, in the data's units squared (`s_j² = v_j`, the
     /// feature's variance over the training frames, 1 for a constant one;
+    /// for a velocity under `positions`, its position's variance in the
+    /// velocity's unit: [`crate::position_scales`];
     /// [`FitSummary::regularisation`] then holds `R`, a fraction). Empty for
     /// an absolute regularisation.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
@@ -112,7 +114,9 @@ pub struct CovarianceCalibration {
     /// widened so that a left-out demonstration is covered at `level`
     /// (`Calibration::Demonstrations`, `phasekit_gmr::demonstration_inflation`;
     /// `scale = λ · Q_level(m²) / χ²_level(p)`); 1 when the frames are pooled
-    /// (`Calibration::Frames`), and in files written before it existed.
+    /// (`Calibration::Frames`), in files written before it existed, and when
+    /// it could not be computed (fewer than two held-out demonstrations with
+    /// scored frames: the summary's `warnings` then say so).
     #[serde(default = "no_inflation")]
     pub demonstration_inflation: f64,
     /// Held-out frames it was fitted on.

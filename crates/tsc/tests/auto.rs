@@ -281,13 +281,22 @@ fn keys_are_validated_and_errors_name_them() {
     assert!(AutoSettings::is_key("grid") && !AutoSettings::is_key("states"));
 
     // Every specification of every grid makes a method; `auto` is a preset.
-    for grid in [Grid::Small, Grid::Default, Grid::Relative] {
+    for grid in [
+        Grid::Small,
+        Grid::Default,
+        Grid::Relative,
+        Grid::Positions,
+        Grid::Mixed,
+    ] {
         let s = AutoSettings::builder().grid(grid).build().unwrap();
         assert_eq!(
             s.candidates(&PresetOptions::default()).unwrap().len(),
             grid.specs().len()
         );
     }
+    // The mixed grid is the positions grid and more.
+    assert!(Grid::Mixed.specs().starts_with(Grid::Positions.specs()));
+    assert!(Grid::Mixed.specs().len() > Grid::Positions.specs().len());
     let m = Method::preset("auto".parse::<Preset>().unwrap(), &PresetOptions::default()).unwrap();
     assert!(matches!(m, Method::CrossValidated(_)));
     assert!(method_of_spec("hmm:states=x", &PresetOptions::default()).is_err());

@@ -156,7 +156,7 @@ fn the_velocitys_unit_is_read_off_the_data() {
         .with_velocities(vec![(1, 0), (3, 2)])
         .unwrap();
     let v = feature_variances(&set);
-    let s = position_scales(&set, &roles);
+    let s = position_scales(&set, &roles).unwrap();
     assert!((s[0] - v[0].sqrt()).abs() < 1e-15);
     assert!(
         (s[1] - 2.5 * v[0].sqrt()).abs() < 1e-12,
@@ -166,6 +166,12 @@ fn the_velocitys_unit_is_read_off_the_data() {
     );
     assert_eq!(s[2], 1.0);
     assert!((s[3] - v[3].sqrt()).abs() < 1e-15);
+    // Roles that name a dim the data lacks: an error, not an index panic.
+    let wider = Roles::new(vec![0, 1], vec![2, 4])
+        .unwrap()
+        .with_velocities(vec![(1, 0), (4, 2)])
+        .unwrap();
+    assert!(position_scales(&set, &wider).is_err());
 }
 
 #[test]

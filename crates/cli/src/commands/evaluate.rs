@@ -878,5 +878,15 @@ mod tests {
             row.per_seed_covariance_scale
         );
         assert_eq!(back.mse_mean, 12.5);
+        // A method that failed on every seed has no MSE either.
+        let mut failed = baseline_row("wave", f64::NAN);
+        failed.mse_std = f64::NAN;
+        failed.rmse_mean = f64::NAN;
+        failed.rmse_std = f64::NAN;
+        let json = serde_json::to_string(&failed).unwrap();
+        assert!(json.contains("\"mse_mean\":null"), "{json}");
+        let back: Row = serde_json::from_str(&json).unwrap();
+        assert!(back.mse_mean.is_nan() && back.mse_std.is_nan());
+        assert!(back.rmse_mean.is_nan() && back.rmse_std.is_nan());
     }
 }

@@ -9,7 +9,7 @@ use crate::experiment::parse_method;
 use crate::model_file::{MethodInfo, ModelFile, Standardisation};
 use crate::output;
 use phasekit_emission::SequenceSet;
-use phasekit_tsc::{FitStop, FitSummary, Model, PresetOptions};
+use phasekit_tsc::{FitStop, FitSummary, Model, PresetOptions, RegUnits};
 use serde::Serialize;
 use std::path::PathBuf;
 
@@ -32,8 +32,10 @@ pub struct FitReport {
     /// Whether features were z-scored.
     pub standardised: bool,
     /// The unit of `regularisation`: `absolute` (the features' units², added
-    /// to every covariance diagonal) or `relative` (a fraction of each
-    /// feature's variance; `regularisation_per_feature` holds the amounts).
+    /// to every covariance diagonal), `relative` (a fraction of each
+    /// feature's variance) or `positions` (a fraction of each position's
+    /// variance, a velocity's being its position's); with the last two
+    /// `regularisation_per_feature` holds the amounts.
     pub regularisation_unit: String,
     /// What the fit did: `iterations`, `log_likelihood` (per iteration, summed over
     /// sequences), `stop` (why EM stopped), `fit_seconds`, `jitter`, `transition_segments`, …
@@ -62,11 +64,12 @@ impl FitReport {
             frames,
             features: mf.layout.features.clone(),
             standardised: mf.standardisation.is_some(),
-            regularisation_unit: if mf.fit.regularisation_per_feature.is_empty() {
-                "absolute".into()
-            } else {
-                "relative".into()
-            },
+            regularisation_unit: match mf.method.settings.regularisation() {
+                _ if mf.fit.regularisation_per_feature.is_empty() => "absolute",
+                Some((_, RegUnits::Positions, _)) => "positions",
+                _ => "relative",
+            }
+            .into(),
             fit: mf.fit.clone(),
             model_file,
             notes: Vec::new(),
@@ -355,8 +358,13 @@ fn reg_text(r: &FitReport) -> String {
             .regularisation_per_feature
             .iter()
             .fold((f64::INFINITY, 0.0f64), |(a, b), v| (a.min(*v), b.max(*v)));
+        let of_what = if r.regularisation_unit == "positions" {
+            "each position's variance (a velocity: its position's)"
+        } else {
+            "each feature's variance"
+        };
         format!(
-            "{:e} × each feature's variance (added to the feature's variance: {lo:.3e} to {hi:.3e} {}²)",
+            "{:e} × {of_what} (added to the feature's variance: {lo:.3e} to {hi:.3e} {}²)",
             f.regularisation,
             if r.standardised {
                 "standardised units"
@@ -481,10 +489,11 @@ pub fn cv_table_markdown(fit: &FitSummary, standardised: bool) -> String {
     if let Some(c) = &fit.covariance_calibration {
         s.push_str(&format!(
             "\nCalibration of the chosen candidate's predictive covariance on its {} held-out frames: \
-             multiplied by {:.4}, so that {:.1} % of them (was {:.1} %) fall inside the {:.0} % region; \
-             NLPD {:.3} → {:.3} nats.\n",
+             multiplied by {:.4} (widened {:.3}× for a new demonstration), so that {:.1} % of them \
+             (was {:.1} %) fall inside the {:.0} % region; NLPD {:.3} → {:.3} nats.\n",
             c.frames,
             c.scale,
+            c.demonstration_inflation,
             100.0 * c.coverage_after,
             100.0 * c.coverage_before,
             100.0 * c.level,
