@@ -238,16 +238,9 @@ fn evaluate_gives_the_same_numbers_with_and_without_standardise() {
 fn the_fit_report_names_the_positions_unit() {
     let (dir, data) = interaction_folder(5, 4, 6, plain);
     let out = dir.path().join("pos.json");
-    let report = |format: &str| {
+    let report = |method: &str, format: &str| {
         let o = phasekit()
-            .args([
-                "fit",
-                "--method",
-                "hmm:reg-pos=0.2",
-                "--format",
-                format,
-                "--data",
-            ])
+            .args(["fit", "--method", method, "--format", format, "--data"])
             .arg(&data)
             .arg("-o")
             .arg(&out)
@@ -258,9 +251,21 @@ fn the_fit_report_names_the_positions_unit() {
             .clone();
         String::from_utf8(o).unwrap()
     };
-    let json: serde_json::Value = serde_json::from_str(&report("json")).unwrap();
+    let json: serde_json::Value = serde_json::from_str(&report("hmm:reg-pos=0.2", "json")).unwrap();
     assert_eq!(json["regularisation_unit"], "positions");
     assert_eq!(json["regularisation"], 0.2);
-    let text = report("md");
+    let text = report("hmm:reg-pos=0.2", "md");
     assert!(text.contains("each position's variance"), "{text}");
+    // `auto` reports the unit of the candidate it chose (every candidate of
+    // this grid and family is in positions' variances).
+    let json: serde_json::Value = serde_json::from_str(&report(
+        "auto:grid=positions,families=hmm,folds=2,halving=off",
+        "json",
+    ))
+    .unwrap();
+    assert!(
+        json["chosen"].as_str().unwrap().contains("reg-pos"),
+        "{json}"
+    );
+    assert_eq!(json["regularisation_unit"], "positions");
 }

@@ -9,7 +9,7 @@ use crate::experiment::parse_method;
 use crate::model_file::{MethodInfo, ModelFile, Standardisation};
 use crate::output;
 use phasekit_emission::SequenceSet;
-use phasekit_tsc::{FitStop, FitSummary, Model, PresetOptions, RegUnits};
+use phasekit_tsc::{FitStop, FitSummary, Method, Model, PresetOptions, RegUnits};
 use serde::Serialize;
 use std::path::PathBuf;
 
@@ -64,7 +64,7 @@ impl FitReport {
             frames,
             features: mf.layout.features.clone(),
             standardised: mf.standardisation.is_some(),
-            regularisation_unit: match mf.method.settings.regularisation() {
+            regularisation_unit: match fitted_method(mf).regularisation() {
                 _ if mf.fit.regularisation_per_feature.is_empty() => "absolute",
                 Some((_, RegUnits::Positions, _)) => "positions",
                 _ => "relative",
@@ -76,6 +76,19 @@ impl FitReport {
         };
         r.notes = notes(&r.fit);
         r
+    }
+}
+
+/// The method whose model the file holds: `auto`'s chosen candidate, or the
+/// file's method.
+fn fitted_method(mf: &ModelFile) -> &Method {
+    match (&mf.method.settings, &mf.fit.chosen) {
+        (Method::CrossValidated(cv), Some(chosen)) => cv
+            .candidates()
+            .iter()
+            .find(|(label, _)| label == chosen)
+            .map_or(&mf.method.settings, |(_, m)| m),
+        (m, _) => m,
     }
 }
 
