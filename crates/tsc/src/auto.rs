@@ -139,32 +139,10 @@ pub const POSITIONS_GRID: &[&str] = &[
     "gmm:states=10,reg-pos=0.03,emission=student-t",
 ];
 
-/// [`POSITIONS_GRID`] and six candidates that keep the velocities
-/// (`reg-rel`: a fraction of each feature's own variance), unit-free too.
-pub const MIXED_GRID: &[&str] = &[
-    "hmm:states=5,reg-pos=0.3",
-    "hmm:states=5,reg-pos=0.03",
-    "hmm:states=7,reg-pos=0.3",
-    "hmm:states=7,reg-pos=0.1",
-    "hmm:states=7,reg-pos=0.03",
-    "hmm:states=10,reg-pos=0.3",
-    "hmm:states=10,reg-pos=0.1",
-    "hmm:states=10,reg-pos=0.03",
-    "hmm:states=13,reg-pos=0.03",
-    "hmm:states=7,reg-pos=0.03,emission=student-t",
-    "tsc-hmm:states=4,reg-pos=0.3",
-    "tsc-hmm:states=4,reg-pos=0.03",
-    "tsc-hmm:states=7,reg-pos=0.3",
-    "tsc-hmm:states=7,reg-pos=0.03",
-    "tsc-hmm:states=4,reg-pos=0.03,emission=student-t",
-    "hsmm:states=4,reg-pos=0.3",
-    "hsmm:states=4,reg-pos=0.03",
-    "gmm:states=5,reg-pos=0.3",
-    "gmm:states=10,reg-pos=0.3",
-    "gmm:states=10,reg-pos=0.03",
-    "gmm:states=15,reg-pos=0.03",
-    "gmm:states=5,reg-pos=0.3,emission=student-t",
-    "gmm:states=10,reg-pos=0.03,emission=student-t",
+/// The six candidates that [`Grid::Mixed`] adds to [`POSITIONS_GRID`]: they
+/// keep the velocities (`reg-rel`: a fraction of each feature's own
+/// variance), unit-free too.
+pub const KEEP_VELOCITIES: &[&str] = &[
     "hmm:states=7,reg-rel=0.1",
     "hmm:states=10,reg-rel=0.1",
     "tsc-hmm:states=4,reg-rel=0.1",
@@ -199,19 +177,19 @@ pub enum Grid {
     Relative,
     /// [`POSITIONS_GRID`].
     Positions,
-    /// [`MIXED_GRID`].
+    /// [`POSITIONS_GRID`] and [`KEEP_VELOCITIES`].
     Mixed,
 }
 
 impl Grid {
     /// The candidates' specifications.
-    pub fn specs(self) -> &'static [&'static str] {
+    pub fn specs(self) -> Vec<&'static str> {
         match self {
-            Grid::Small => SMALL_GRID,
-            Grid::Default => DEFAULT_GRID,
-            Grid::Relative => RELATIVE_GRID,
-            Grid::Positions => POSITIONS_GRID,
-            Grid::Mixed => MIXED_GRID,
+            Grid::Small => SMALL_GRID.to_vec(),
+            Grid::Default => DEFAULT_GRID.to_vec(),
+            Grid::Relative => RELATIVE_GRID.to_vec(),
+            Grid::Positions => POSITIONS_GRID.to_vec(),
+            Grid::Mixed => [POSITIONS_GRID, KEEP_VELOCITIES].concat(),
         }
     }
 }
@@ -321,7 +299,7 @@ impl AutoSettingsBuilder {
             });
         }
         if let Some(fams) = &s.families {
-            let known = families_of(s.grid.specs());
+            let known = families_of(&s.grid.specs());
             if fams.is_empty() {
                 return Err(TscError::InvalidSetting {
                     name: "families",

@@ -295,7 +295,7 @@ fn keys_are_validated_and_errors_name_them() {
         );
     }
     // The mixed grid is the positions grid and more.
-    assert!(Grid::Mixed.specs().starts_with(Grid::Positions.specs()));
+    assert!(Grid::Mixed.specs().starts_with(&Grid::Positions.specs()));
     assert!(Grid::Mixed.specs().len() > Grid::Positions.specs().len());
     let m = Method::preset("auto".parse::<Preset>().unwrap(), &PresetOptions::default()).unwrap();
     assert!(matches!(m, Method::CrossValidated(_)));
