@@ -6,6 +6,7 @@
 //! apart) is given — which neither the absolute nor the plain relative unit
 //! gives with the paper's amount of velocity regularisation.
 
+use crate::reg_units::{gaussian_of, json_difference, sample_moments, scaled};
 use phasekit_emission::{Frames, SequenceSet};
 use phasekit_tsc::synthetic;
 use phasekit_tsc::{
@@ -44,13 +45,6 @@ fn data(n: usize, seed: u64) -> (Vec<Vec<f64>>, Vec<f64>) {
     (seqs[..n - 1].to_vec(), seqs[n - 1].clone())
 }
 
-fn scaled(seq: &[f64], a: &[f64]) -> Vec<f64> {
-    seq.iter()
-        .enumerate()
-        .map(|(k, v)| v * a[k % a.len()])
-        .collect()
-}
-
 fn roles() -> Roles {
     Roles::new(vec![0, 1, 2, 3, 4, 5], vec![6, 7, 8, 9, 10, 11])
         .unwrap()
@@ -67,30 +61,12 @@ fn options(reg: f64, units: RegUnits) -> PresetOptions {
         .unwrap()
 }
 
-fn gaussian_of(model: &Model) -> phasekit_emission::Gaussian {
-    match model {
-        Model::Hmm(h) => h.emission().as_gaussian().unwrap().clone(),
-        Model::Gmm(g) => g.components().as_gaussian().unwrap().clone(),
-        _ => unreachable!(),
-    }
-}
-
 #[test]
 fn a_velocity_is_regularised_by_its_positions_variance() {
     let (train, _) = data(5, 3);
     let set = SequenceSet::new(&train, D).unwrap();
-    // The obvious formulas, independent of the library.
-    let all: Vec<&[f64]> = train.iter().flat_map(|q| q.chunks_exact(D)).collect();
-    let n = all.len() as f64;
-    let mean: Vec<f64> = (0..D)
-        .map(|j| all.iter().map(|x| x[j]).sum::<f64>() / n)
-        .collect();
-    let cov = |i: usize, j: usize| {
-        all.iter()
-            .map(|x| (x[i] - mean[i]) * (x[j] - mean[j]))
-            .sum::<f64>()
-            / n
-    };
+    let (_, cov) = sample_moments(&train, D);
+    let cov = |i: usize, j: usize| cov[i][j];
     // Feature j is regularised by R × the variance of its position (its own
     // for a position; for a velocity, the position it differences).
     let position_of = |j: usize| match j {
@@ -192,32 +168,6 @@ fn without_velocities_it_is_the_relative_unit() {
             fit(RegUnits::Relative),
             "{preset}"
         );
-    }
-}
-
-/// Largest `|a − b| / (1 + |a|)` over two JSON values of one shape.
-fn json_difference(a: &serde_json::Value, b: &serde_json::Value) -> f64 {
-    use serde_json::Value;
-    match (a, b) {
-        (Value::Number(x), Value::Number(y)) => {
-            let (x, y) = (x.as_f64().unwrap(), y.as_f64().unwrap());
-            (x - y).abs() / (1.0 + x.abs())
-        }
-        (Value::Array(x), Value::Array(y)) => {
-            assert_eq!(x.len(), y.len());
-            x.iter()
-                .zip(y)
-                .map(|(x, y)| json_difference(x, y))
-                .fold(0.0, f64::max)
-        }
-        (Value::Object(x), Value::Object(y)) => x
-            .iter()
-            .map(|(k, v)| json_difference(v, &y[k]))
-            .fold(0.0, f64::max),
-        (x, y) => {
-            assert_eq!(x, y);
-            0.0
-        }
     }
 }
 

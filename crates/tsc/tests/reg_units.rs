@@ -24,7 +24,7 @@ fn data(n: usize, seed: u64) -> (Vec<Vec<f64>>, Vec<f64>) {
     (seqs[..n - 1].to_vec(), seqs[n - 1].clone())
 }
 
-fn scaled(seq: &[f64], a: &[f64]) -> Vec<f64> {
+pub(crate) fn scaled(seq: &[f64], a: &[f64]) -> Vec<f64> {
     seq.iter()
         .enumerate()
         .map(|(k, v)| v * a[k % a.len()])
@@ -52,7 +52,9 @@ fn options(reg: f64, units: RegUnits) -> PresetOptions {
 }
 
 /// `|a − b| / (1 + |a|)`, largest over two JSON values of one shape.
-fn json_difference(a: &serde_json::Value, b: &serde_json::Value) -> f64 {
+/// Largest `|a − b| / (1 + |a|)` over two JSON values (infinite where their
+/// shapes differ).
+pub(crate) fn json_difference(a: &serde_json::Value, b: &serde_json::Value) -> f64 {
     use serde_json::Value;
     match (a, b) {
         (Value::Number(x), Value::Number(y)) => {
@@ -111,23 +113,45 @@ fn normalised(model: &Model, train: &SequenceSet) -> serde_json::Value {
     serde_json::to_value(scale_model(model, &s).unwrap()).unwrap()
 }
 
+/// The frames' mean and population covariance, by the obvious formulas
+/// (independent of the library).
+pub(crate) fn sample_moments(train: &[Vec<f64>], d: usize) -> (Vec<f64>, Vec<Vec<f64>>) {
+    let all: Vec<&[f64]> = train.iter().flat_map(|q| q.chunks_exact(d)).collect();
+    let n = all.len() as f64;
+    let mean: Vec<f64> = (0..d)
+        .map(|j| all.iter().map(|x| x[j]).sum::<f64>() / n)
+        .collect();
+    let cov = (0..d)
+        .map(|i| {
+            (0..d)
+                .map(|j| {
+                    all.iter()
+                        .map(|x| (x[i] - mean[i]) * (x[j] - mean[j]))
+                        .sum::<f64>()
+                        / n
+                })
+                .collect()
+        })
+        .collect();
+    (mean, cov)
+}
+
+/// The Gaussian emission of a one-state HMM or one-component GMM.
+pub(crate) fn gaussian_of(model: &Model) -> phasekit_emission::Gaussian {
+    match model {
+        Model::Hmm(h) => h.emission().as_gaussian().unwrap().clone(),
+        Model::Gmm(g) => g.components().as_gaussian().unwrap().clone(),
+        _ => panic!("not an hmm or gmm"),
+    }
+}
+
 #[test]
 fn one_state_covariance_is_the_sample_covariance_plus_r_times_the_variances() {
     let (train, _) = data(5, 3);
     let train: Vec<Vec<f64>> = train.iter().map(|q| scaled(q, &A)).collect();
     let set = SequenceSet::new(&train, D).unwrap();
-    // The obvious formulas, independent of the library.
-    let all: Vec<&[f64]> = train.iter().flat_map(|q| q.chunks_exact(D)).collect();
-    let n = all.len() as f64;
-    let mean: Vec<f64> = (0..D)
-        .map(|j| all.iter().map(|x| x[j]).sum::<f64>() / n)
-        .collect();
-    let cov = |i: usize, j: usize| {
-        all.iter()
-            .map(|x| (x[i] - mean[i]) * (x[j] - mean[j]))
-            .sum::<f64>()
-            / n
-    };
+    let (mean, cov) = sample_moments(&train, D);
+    let cov = |i: usize, j: usize| cov[i][j];
     let r = 0.05;
     for preset in [Preset::Hmm, Preset::Gmm] {
         let o = options(r, RegUnits::Relative)
@@ -139,11 +163,7 @@ fn one_state_covariance_is_the_sample_covariance_plus_r_times_the_variances() {
             .unwrap()
             .fit(&set, &roles())
             .unwrap();
-        let g = match &model {
-            Model::Hmm(h) => h.emission().as_gaussian().unwrap().clone(),
-            Model::Gmm(g) => g.components().as_gaussian().unwrap().clone(),
-            _ => unreachable!(),
-        };
+        let g = gaussian_of(&model);
         let got = g.covariance(0);
         for i in 0..D {
             for j in 0..D {

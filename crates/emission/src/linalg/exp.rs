@@ -264,21 +264,7 @@ mod tests {
     use super::*;
     use rand::{Rng, SeedableRng};
 
-    /// Distance in units in the last place (ordered bit patterns).
-    fn ulps(a: f64, b: f64) -> u64 {
-        if a == b {
-            return 0;
-        }
-        let key = |v: f64| {
-            let b = v.to_bits() as i64;
-            if b < 0 {
-                i64::MIN - b
-            } else {
-                b
-            }
-        };
-        key(a).abs_diff(key(b))
-    }
+    use crate::linalg::test_support::ulps;
 
     #[test]
     fn exp_is_within_one_ulp_of_libm() {

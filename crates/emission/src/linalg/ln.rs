@@ -109,20 +109,7 @@ mod tests {
     use super::*;
     use rand::{Rng, SeedableRng};
 
-    fn ulps(a: f64, b: f64) -> u64 {
-        if a.to_bits() == b.to_bits() {
-            return 0;
-        }
-        let key = |v: f64| {
-            let b = v.to_bits() as i64;
-            if b < 0 {
-                i64::MIN - b
-            } else {
-                b
-            }
-        };
-        key(a).abs_diff(key(b))
-    }
+    use crate::linalg::test_support::ulps;
 
     /// Within 1 ulp of the platform's `ln` on 2 million arguments spread over
     /// every binade, 1 ± tiny, powers of two; the special values are the

@@ -18,6 +18,8 @@ mod lanes;
 mod ln;
 mod norms;
 mod packed;
+#[cfg(test)]
+mod test_support;
 
 pub use dispatch::{dispatch, simd_level, with_simd_level, SimdLevel};
 pub use exp::{
