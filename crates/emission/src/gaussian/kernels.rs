@@ -668,26 +668,20 @@ unsafe fn centre_weight_groups<V: Lanes, const G: usize>(
     a_buf: &mut [f64],
 ) -> f64 {
     let nvec = chunk.dp / V::W;
-    let mut n = n;
+    // `n + Σ_j w_j` in frame order, on its own: inside the centring loop the
+    // scalar sum was spilled to the stack (no register left beside the
+    // group's vectors), and its chain of store, reload and add, ~8 cycles a
+    // frame, bounded the loop.
+    let n = chunk.w.iter().fold(n, |n, w| n + w);
     let mut v0 = 0;
     while v0 < nvec {
         let g = (nvec - v0).min(G);
-        let first = v0 == 0;
         macro_rules! go {
             ($g:literal) => {
-                match (range, first) {
-                    (true, true) => {
-                        centre_weight::<V, $g, true, true>(chunk, run, i, v0, &mut n, e_buf, a_buf)
-                    }
-                    (true, false) => {
-                        centre_weight::<V, $g, true, false>(chunk, run, i, v0, &mut n, e_buf, a_buf)
-                    }
-                    (false, true) => {
-                        centre_weight::<V, $g, false, true>(chunk, run, i, v0, &mut n, e_buf, a_buf)
-                    }
-                    (false, false) => centre_weight::<V, $g, false, false>(
-                        chunk, run, i, v0, &mut n, e_buf, a_buf,
-                    ),
+                if range {
+                    centre_weight::<V, $g, true>(chunk, run, i, v0, e_buf, a_buf)
+                } else {
+                    centre_weight::<V, $g, false>(chunk, run, i, v0, e_buf, a_buf)
                 }
             };
         }
@@ -705,20 +699,18 @@ unsafe fn centre_weight_groups<V: Lanes, const G: usize>(
 /// Vectors `v0 .. v0 + GN` of `e_j = x_j − c` and `a_j = w_j e_j` for the
 /// frames of the chunk, into the rows of `e_buf`/`a_buf` (stride `dp`;
 /// padding lanes zero, since `x` and `c` are read as zero there), with
-/// `s ← s + a_j` in order and (with `RANGE`) the range of the frames; with
-/// `WEIGHT`, also `n ← n + w_j` in order.
+/// `s ← s + a_j` in order and (with `RANGE`) the range of the frames.
 ///
 /// # Safety
 /// The running vectors of state `i` hold `dp` values; `e_buf`, `a_buf` hold
 /// `offsets.len() · dp`; every offset is a frame of `data`; `v0 + GN` vectors
 /// fit in `dp`.
 #[inline(always)]
-unsafe fn centre_weight<V: Lanes, const GN: usize, const RANGE: bool, const WEIGHT: bool>(
+unsafe fn centre_weight<V: Lanes, const GN: usize, const RANGE: bool>(
     chunk: &Chunk<'_>,
     run: &mut Running,
     i: usize,
     v0: usize,
-    n: &mut f64,
     e_buf: &mut [f64],
     a_buf: &mut [f64],
 ) {
@@ -735,7 +727,6 @@ unsafe fn centre_weight<V: Lanes, const GN: usize, const RANGE: bool, const WEIG
     let mut sv: [V; GN] = std::array::from_fn(|g| V::load(run.sum.as_ptr().add(at + g * V::W)));
     let mut lv: [V; GN] = std::array::from_fn(|g| V::load(run.lo.as_ptr().add(at + g * V::W)));
     let mut hv: [V; GN] = std::array::from_fn(|g| V::load(run.hi.as_ptr().add(at + g * V::W)));
-    let mut nn = *n;
     for (j, (&t, &w)) in chunk.offsets.iter().zip(chunk.w).enumerate() {
         let p = x.add(t as usize * d);
         let wv = V::splat(w);
@@ -755,11 +746,7 @@ unsafe fn centre_weight<V: Lanes, const GN: usize, const RANGE: bool, const WEIG
                 hv[g] = V::max(xv, hv[g]);
             }
         }
-        if WEIGHT {
-            nn += w;
-        }
     }
-    *n = nn;
     for g in 0..GN {
         sv[g].store(run.sum.as_mut_ptr().add(at + g * V::W));
         if RANGE {

@@ -22,8 +22,8 @@
 //! same loop: two independent dependency chains that the CPU overlaps.
 
 use super::kernels::{
-    all_at_least, all_positive_densities, chunks, exp_shifted, max_lanes, padded, padded_rows,
-    scale_lanes, sum_lanes, vec_mat, vec_mat_dyn, Lanes, RESCALE, SAFE, W,
+    all_at_least, chunks, exp_shifted, padded, padded_rows, scale_lanes, sum_lanes, vec_mat,
+    vec_mat_dyn, Lanes, RESCALE, SAFE, W,
 };
 use crate::model::Hmm;
 use phasekit_emission::linalg::{exp_slice, log_sum_exp};
@@ -108,20 +108,30 @@ impl BackwardCore {
     /// writes the padded `u` and `next` (see the module documentation) and
     /// carries `β̂_t`. Returns false when no state can explain the frames from
     /// `t + 1` on (the sequence is impossible).
+    ///
+    /// The frame's shifted densities come computed: `shifted = e^{log b − m}`
+    /// with `m` = [`super::kernels::fast_shift`]`(log_b)` (NaN when the frame cannot take the
+    /// fast form), as the forward step's
+    /// ([`super::forward::ForwardCore::step_shifted_inline`]); the caller, which
+    /// has every frame at once, takes all their exponentials in one pass and
+    /// both recursions use them.
     #[inline(always)]
-    pub(crate) fn step_inline(
+    pub(crate) fn step_shifted_inline(
         &mut self,
         log_b: &[Lanes],
+        shifted: &[Lanes],
+        m: f64,
         u: &mut [Lanes],
         next: &mut [Lanes],
     ) -> bool {
-        if !self.log_mode && self.all_alive && self.dense {
+        if !self.log_mode && self.all_alive && self.dense && !m.is_nan() {
+            u.copy_from_slice(shifted);
             let fast = match self.beta.len() {
-                1 => self.fast_step::<1>(log_b, u, next),
-                2 => self.fast_step::<2>(log_b, u, next),
-                3 => self.fast_step::<3>(log_b, u, next),
-                4 => self.fast_step::<4>(log_b, u, next),
-                _ => self.fast_step_dyn(log_b, u, next),
+                1 => self.fast_rest::<1>(u, next),
+                2 => self.fast_rest::<2>(u, next),
+                3 => self.fast_rest::<3>(u, next),
+                4 => self.fast_rest::<4>(u, next),
+                _ => self.fast_dyn_rest(u, next),
             };
             if fast {
                 self.fast_steps += 1;
@@ -132,24 +142,14 @@ impl BackwardCore {
         self.general_step(log_b, u, next)
     }
 
-    /// The common frame without bookkeeping, with `C` chunks in registers;
-    /// false (nothing changed but `u` and `next`) when one of its conditions fails.
+    /// The common frame without bookkeeping from `u = e^{log b − m}`, with `C`
+    /// chunks in registers; false (nothing changed but `u` and `next`) when
+    /// one of its conditions fails (then the general step redoes the frame).
     #[inline(always)]
-    fn fast_step<const C: usize>(
-        &mut self,
-        log_b: &[Lanes],
-        u: &mut [Lanes],
-        next: &mut [Lanes],
-    ) -> bool {
-        let log_b: &[Lanes; C] = log_b.try_into().expect("C chunks");
+    fn fast_rest<const C: usize>(&mut self, u: &mut [Lanes], next: &mut [Lanes]) -> bool {
         let u: &mut [Lanes; C] = u.try_into().expect("C chunks");
         let next: &mut [Lanes; C] = next.try_into().expect("C chunks");
         let beta: &[Lanes; C] = self.beta.as_slice().try_into().expect("C chunks");
-        let m = max_lanes(log_b);
-        if !all_positive_densities(log_b) || m == f64::INFINITY {
-            return false;
-        }
-        exp_shifted(log_b, m, u);
         for (uk, bk) in u.iter_mut().zip(beta) {
             for l in 0..W {
                 uk[l] *= bk[l];
@@ -174,14 +174,9 @@ impl BackwardCore {
         true
     }
 
-    /// [`BackwardCore::fast_step`] for more than four chunks (through memory).
+    /// [`BackwardCore::fast_rest`] for more than four chunks (through memory).
     #[inline(always)]
-    fn fast_step_dyn(&mut self, log_b: &[Lanes], u: &mut [Lanes], next: &mut [Lanes]) -> bool {
-        let m = max_lanes(log_b);
-        if !all_positive_densities(log_b) || m == f64::INFINITY {
-            return false;
-        }
-        exp_shifted(log_b, m, u);
+    fn fast_dyn_rest(&mut self, u: &mut [Lanes], next: &mut [Lanes]) -> bool {
         for (uk, bk) in u.iter_mut().zip(&self.beta) {
             for l in 0..W {
                 uk[l] *= bk[l];
@@ -346,7 +341,7 @@ impl BackwardCore {
 mod tests {
     use super::*;
     use crate::inference::forward::tests::random_case;
-    use crate::inference::kernels::PAD_LOG_B;
+    use crate::inference::kernels::{fast_shift, shifted_arguments, PAD_LOG_B};
 
     fn bits(v: &[f64]) -> Vec<u64> {
         v.iter().map(|x| x.to_bits()).collect()
@@ -365,10 +360,13 @@ mod tests {
             let mut b = a.clone();
             let z = vec![[0.0; W]; c];
             let (mut ua, mut ub, mut na, mut nb) = (z.clone(), z.clone(), z.clone(), z.clone());
-            let mut row = z.clone();
+            let (mut row, mut e) = (z.clone(), z.clone());
             for (t, lb) in log_b.chunks_exact(s).enumerate().rev() {
                 padded(lb, PAD_LOG_B, &mut row);
-                let oka = a.step_inline(&row, &mut ua, &mut na);
+                let m = fast_shift(&row);
+                shifted_arguments(&row, m, &mut e);
+                exp_slice(e.as_flattened_mut());
+                let oka = a.step_shifted_inline(&row, &e, m, &mut ua, &mut na);
                 let okb = b.general_step(&row, &mut ub, &mut nb);
                 assert_eq!(oka, okb, "seed {seed}, frame {t}");
                 if !okb {

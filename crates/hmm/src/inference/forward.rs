@@ -183,6 +183,44 @@ impl ForwardCore {
         self.general_step(log_b, h)
     }
 
+    /// [`ForwardCore::step_inline`] with the frame's shifted densities
+    /// computed beforehand: `shifted = e^{log b − m}` (as [`exp_shifted`]
+    /// gives them) with `m = max_j log b_j`, or `m` NaN when the frame cannot
+    /// take the fast form (a zero density, `m = +∞`). The same bits as
+    /// [`ForwardCore::step_inline`]; a caller that has every frame at once
+    /// takes the exponentials of all of them in one pass, where they overlap,
+    /// instead of one frame's on the recursion's critical path.
+    #[inline(always)]
+    pub(crate) fn step_shifted_inline(
+        &mut self,
+        log_b: &[Lanes],
+        shifted: &[Lanes],
+        m: f64,
+        h: &mut [Lanes],
+    ) -> f64 {
+        if !self.log_mode && self.all_reachable && self.dense && !m.is_nan() {
+            let fast = match self.pred.len() {
+                1 => self.fast_rest::<1>(*<&[Lanes; 1]>::try_from(shifted).expect("1 chunk"), m, h),
+                2 => {
+                    self.fast_rest::<2>(*<&[Lanes; 2]>::try_from(shifted).expect("2 chunks"), m, h)
+                }
+                3 => {
+                    self.fast_rest::<3>(*<&[Lanes; 3]>::try_from(shifted).expect("3 chunks"), m, h)
+                }
+                4 => {
+                    self.fast_rest::<4>(*<&[Lanes; 4]>::try_from(shifted).expect("4 chunks"), m, h)
+                }
+                _ => self.fast_dyn_rest(shifted, m, h),
+            };
+            if let Some(lc) = fast {
+                self.fast_steps += 1;
+                return lc;
+            }
+        }
+        self.general_steps += 1;
+        self.general_step(log_b, h)
+    }
+
     /// The common frame without bookkeeping, with `C` chunks in registers,
     /// or `None` (nothing changed but `h`) when one of its conditions fails;
     /// then the general step redoes the frame.
@@ -192,13 +230,24 @@ impl ForwardCore {
         // that the compiler sees that nothing aliases and keeps the vectors
         // in registers.
         let log_b: [Lanes; C] = *<&[Lanes; C]>::try_from(log_b).expect("C chunks");
-        let pred: [Lanes; C] = *<&[Lanes; C]>::try_from(self.pred.as_slice()).expect("C chunks");
         let m = max_lanes(&log_b);
         if !all_positive_densities(&log_b) || m == f64::INFINITY {
             return None;
         }
         let mut o = [[0.0; W]; C];
         exp_shifted(&log_b, m, &mut o);
+        self.fast_rest::<C>(o, m, h)
+    }
+
+    /// The fast step from `o = e^{log b − m}`.
+    #[inline(always)]
+    fn fast_rest<const C: usize>(
+        &mut self,
+        mut o: [Lanes; C],
+        m: f64,
+        h: &mut [Lanes],
+    ) -> Option<f64> {
+        let pred: [Lanes; C] = *<&[Lanes; C]>::try_from(self.pred.as_slice()).expect("C chunks");
         for (ok, pk) in o.iter_mut().zip(&pred) {
             for l in 0..W {
                 ok[l] *= pk[l];
@@ -226,8 +275,17 @@ impl ForwardCore {
         if !all_positive_densities(log_b) || m == f64::INFINITY {
             return None;
         }
-        exp_shifted(log_b, m, &mut self.e);
-        for ((hk, pk), ek) in h.iter_mut().zip(&self.pred).zip(&self.e) {
+        let mut e = std::mem::take(&mut self.e);
+        exp_shifted(log_b, m, &mut e);
+        let lc = self.fast_dyn_rest(&e, m, h);
+        self.e = e;
+        lc
+    }
+
+    /// [`ForwardCore::fast_step_dyn`] from `e = e^{log b − m}`.
+    #[inline(always)]
+    fn fast_dyn_rest(&mut self, e: &[Lanes], m: f64, h: &mut [Lanes]) -> Option<f64> {
+        for ((hk, pk), ek) in h.iter_mut().zip(&self.pred).zip(e) {
             for l in 0..W {
                 hk[l] = pk[l] * ek[l];
             }
@@ -384,6 +442,7 @@ impl ForwardCore {
 #[cfg(test)]
 pub(super) mod tests {
     use super::*;
+    use crate::inference::kernels::{fast_shift, shifted_arguments};
     use crate::model::Hmm;
     use phasekit_emission::Gaussian;
     use rand::{Rng, SeedableRng};
@@ -437,31 +496,42 @@ pub(super) mod tests {
         v.iter().map(|x| x.to_bits()).collect()
     }
 
-    /// The fast form where it applies and the general form everywhere give
-    /// the same filtered rows, normalisers and recursion state, frame by frame.
+    /// The fast form where it applies (computing its exponentials, or given
+    /// them computed beforehand) and the general form everywhere give the
+    /// same filtered rows, normalisers and recursion state, frame by frame.
     #[test]
     fn the_fast_step_is_the_general_step_where_it_applies() {
-        let mut fast_total = 0;
+        let (mut fast_total, mut shifted_total) = (0, 0);
         for seed in 0..240 {
             let s = 1 + (seed as usize % 40);
             let c = chunks(s);
             let (hmm, log_b) = random_case(seed, s, 120, seed % 3 == 0);
             let mut a = ForwardCore::new(&hmm);
             let mut b = a.clone();
-            let (mut ha, mut hb) = (vec![[0.0; W]; c], vec![[0.0; W]; c]);
-            let mut row = vec![[0.0; W]; c];
+            let mut d = a.clone();
+            let z = vec![[0.0; W]; c];
+            let (mut ha, mut hb, mut hd) = (z.clone(), z.clone(), z.clone());
+            let (mut row, mut e) = (z.clone(), z.clone());
             for (t, lb) in log_b.chunks_exact(s).enumerate() {
                 padded(lb, PAD_LOG_B, &mut row);
                 let la = a.step_inline(&row, &mut ha);
                 let lb = b.general_step(&row, &mut hb);
+                let m = fast_shift(&row);
+                shifted_arguments(&row, m, &mut e);
+                exp_slice(e.as_flattened_mut());
+                let ld = d.step_shifted_inline(&row, &e, m, &mut hd);
                 assert_eq!(la.to_bits(), lb.to_bits(), "seed {seed}, frame {t}");
+                assert_eq!(ld.to_bits(), lb.to_bits(), "seed {seed}, frame {t}");
                 if lb > f64::NEG_INFINITY {
                     assert_eq!(
                         bits(ha.as_flattened()),
                         bits(hb.as_flattened()),
                         "seed {seed}, frame {t}"
                     );
+                    assert_eq!(bits(hd.as_flattened()), bits(hb.as_flattened()));
                 }
+                assert_eq!(bits(d.pred.as_flattened()), bits(a.pred.as_flattened()));
+                assert_eq!(bits(&d.log_pred), bits(&a.log_pred));
                 assert_eq!(a.log_mode, b.log_mode);
                 assert_eq!(a.reachable, b.reachable);
                 if a.log_mode {
@@ -475,10 +545,11 @@ pub(super) mod tests {
                 }
             }
             fast_total += a.fast_steps;
+            shifted_total += d.fast_steps;
         }
         assert!(
-            fast_total > 8000,
-            "the fast form ran on {fast_total} frames only"
+            fast_total > 8000 && shifted_total == fast_total,
+            "the fast form ran on {fast_total} frames only, given the exponentials on {shifted_total}"
         );
     }
 }

@@ -64,6 +64,31 @@ pub(crate) fn exp_shifted(v: &[Lanes], m: f64, out: &mut [Lanes]) {
     exp_slice(out.as_flattened_mut());
 }
 
+/// The shift `m = max_j log b_j` of a frame's fast step, or NaN when the
+/// fast form cannot take the frame (a zero or NaN density, `m = +∞`): the
+/// conditions the fast steps test first.
+#[inline(always)]
+pub(crate) fn fast_shift(log_b: &[Lanes]) -> f64 {
+    let m = max_lanes(log_b);
+    if all_positive_densities(log_b) && m != f64::INFINITY {
+        m
+    } else {
+        f64::NAN
+    }
+}
+
+/// `out = log b − m` lane by lane, the arguments of [`exp_shifted`]'s
+/// exponentials (zeros when `m` is NaN, a frame the fast form does not take).
+#[inline(always)]
+pub(crate) fn shifted_arguments(log_b: &[Lanes], m: f64, out: &mut [Lanes]) {
+    let fast = !m.is_nan();
+    for (ok, vk) in out.iter_mut().zip(log_b) {
+        for l in 0..W {
+            ok[l] = if fast { vk[l] - m } else { 0.0 };
+        }
+    }
+}
+
 /// `v_j ← v_j · inv` on every lane (the normalisation by `1 / Σ_j v_j` of a
 /// scaled step).
 #[inline(always)]
