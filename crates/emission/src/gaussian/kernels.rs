@@ -560,17 +560,32 @@ fn accumulate_states<V: Lanes, const R: usize, const NV: usize, const G: usize>(
     let mut listed = vec![0u32; s * SUPER_CHUNK];
     let mut listed_w = vec![0.0; s * SUPER_CHUNK];
     let mut len = vec![0usize; s];
+    let in_order: Vec<u32> = (0..SUPER_CHUNK as u32).collect();
     let mut t0 = 0;
     while t0 < t_len {
         let nt = (t_len - t0).min(SUPER_CHUNK);
-        len.fill(0);
-        for (j, row) in weights[t0 * s..(t0 + nt) * s].chunks_exact(s).enumerate() {
-            for (i, &w) in row.iter().enumerate() {
-                // Branch-free: the entry is overwritten unless it counts.
-                let at = i * SUPER_CHUNK + len[i];
-                listed[at] = j as u32;
-                listed_w[at] = w;
-                len[i] += counts(w) as usize;
+        let rows = &weights[t0 * s..(t0 + nt) * s];
+        // Soft posteriors (every weight counts) are the common case: then
+        // the lists are every frame in order, and only the weights need
+        // gathering by state.
+        let every = rows.iter().fold(true, |all, &w| all & counts(w));
+        if every {
+            for (j, row) in rows.chunks_exact(s).enumerate() {
+                for (i, &w) in row.iter().enumerate() {
+                    listed_w[i * SUPER_CHUNK + j] = w;
+                }
+            }
+            len.fill(nt);
+        } else {
+            len.fill(0);
+            for (j, row) in rows.chunks_exact(s).enumerate() {
+                for (i, &w) in row.iter().enumerate() {
+                    // Branch-free: the entry is overwritten unless it counts.
+                    let at = i * SUPER_CHUNK + len[i];
+                    listed[at] = j as u32;
+                    listed_w[at] = w;
+                    len[i] += counts(w) as usize;
+                }
             }
         }
         let block = &data[t0 * d..(t0 + nt) * d];
@@ -581,7 +596,11 @@ fn accumulate_states<V: Lanes, const R: usize, const NV: usize, const G: usize>(
                 continue;
             }
             let dense = n_i == nt;
-            let offsets = &listed[i * SUPER_CHUNK..i * SUPER_CHUNK + n_i];
+            let offsets = if every {
+                &in_order[..n_i]
+            } else {
+                &listed[i * SUPER_CHUNK..i * SUPER_CHUNK + n_i]
+            };
             let ws = &listed_w[i * SUPER_CHUNK..i * SUPER_CHUNK + n_i];
             let q = &mut stats.sum_sq[i * d * d..(i + 1) * d * d];
             let mut n = stats.weight[i];
