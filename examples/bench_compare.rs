@@ -366,6 +366,9 @@ fn breakdown(filter: &str) {
     if "gen".contains(filter) || filter.starts_with("gen") {
         ws.extend(generated_workloads());
     }
+    if filter.starts_with("small") {
+        ws.extend((2..=10).map(small_workload));
+    }
     println!("| workload | log-densities | forward-backward | statistics | M-step | sum (ms) | forward-backward share |");
     println!("|---|---|---|---|---|---|---|");
     for w in ws.iter().filter(|w| w.name.contains(filter)) {

@@ -17,8 +17,9 @@
 //! (state `j` into partial sum `j mod 8`, combined by
 //! [`phasekit_emission::linalg::reduce_lanes`]), the products over states
 //! [`super::kernels::vec_mat`] (even and odd states in two fused
-//! multiply-add chains), the exponentials [`exp_lanes`] (the arithmetic of
-//! [`phasekit_emission::linalg::exp_slice`]), the logarithm of `log c_t`
+//! multiply-add chains), the exponentials [`exp_slice`] over every frame of
+//! the group at once, before the recursions (as the per-sequence path takes
+//! them), the logarithm of `log c_t`
 //! [`ln_lanes`] (that of [`phasekit_emission::linalg::ln`]). A sequence
 //! for which any step leaves the fast form is marked failed and the caller
 //! redoes it with the per-sequence path, so every result is bit-identical
@@ -31,7 +32,7 @@
 
 use super::kernels::{Lanes, RESCALE, SAFE, W};
 use crate::model::Hmm;
-use phasekit_emission::linalg::{dispatch, exp_lanes, ln_lanes};
+use phasekit_emission::linalg::{dispatch, exp_slice, ln_lanes};
 use phasekit_emission::Emission;
 
 /// The largest number of states the lane form takes.
@@ -157,6 +158,14 @@ pub(crate) struct LaneWorkspace {
     u: Vec<Lanes>,
     next: Vec<Lanes>,
     lc: Vec<Lanes>,
+    /// `e^{log b_t − m_t}` (`T_max × S` lane vectors), `m_t = max_j log b_t(j)`
+    /// and whether every `log b_t(j) > −∞`, per lane: every frame's, taken
+    /// in one pass before the recursions (the exponentials overlap there
+    /// instead of waiting on the recursions' chains), used by the forward
+    /// step at `t` and the backward step at `t − 1`.
+    shifted: Vec<Lanes>,
+    shift: Vec<Lanes>,
+    finite: Vec<[bool; W]>,
     /// `Σ_t ξ_t(i, j)` per lane, `S × S`.
     xi: Vec<Lanes>,
     /// Scratch: one lane's `log c_t`.
@@ -185,6 +194,9 @@ impl LaneWorkspace {
             u: Vec::new(),
             next: Vec::new(),
             lc: Vec::new(),
+            shifted: Vec::new(),
+            shift: Vec::new(),
+            finite: Vec::new(),
             xi: Vec::new(),
             lc_row: Vec::new(),
         }
@@ -204,12 +216,19 @@ impl LaneWorkspace {
         self.lens[..self.n].copy_from_slice(lens);
         self.t_max = lens.iter().copied().max().unwrap_or(0);
         let len = self.t_max * self.s;
-        for v in [&mut self.log_b, &mut self.h, &mut self.u, &mut self.next] {
-            v.clear();
+        // Lanes past a sequence's end read `log b = 0` (their results are
+        // discarded, but must not be NaN from an earlier group, which could
+        // slow the arithmetic); every other buffer is written in full by
+        // `run` before it is read, so it keeps its old contents here.
+        self.log_b.clear();
+        self.log_b.resize(len, [0.0; W]);
+        for v in [&mut self.h, &mut self.u, &mut self.next, &mut self.shifted] {
             v.resize(len, [0.0; W]);
         }
-        self.lc.clear();
-        self.lc.resize(self.t_max, [0.0; W]);
+        for v in [&mut self.lc, &mut self.shift] {
+            v.resize(self.t_max, [0.0; W]);
+        }
+        self.finite.resize(self.t_max, [true; W]);
     }
 
     /// Lane `l`'s log-densities, row-major `T_l × S`.
@@ -299,6 +318,27 @@ impl LaneWorkspace {
         }
         let mut beta = [[1.0 / S as f64; W]; S];
         let log_b: &[[Lanes; S]] = as_rows(&self.log_b);
+        {
+            let shifted: &mut [[Lanes; S]] = as_rows_mut(&mut self.shifted);
+            for (((lb, e), m), finite) in log_b
+                .iter()
+                .zip(shifted.iter_mut())
+                .zip(self.shift.iter_mut())
+                .zip(self.finite.iter_mut())
+            {
+                (*m, *finite) = max_and_finite(lb);
+                for j in 0..S {
+                    for l in 0..W {
+                        e[j][l] = lb[j][l] - m[l];
+                    }
+                }
+            }
+        }
+        // Blocks of 8 are lane vectors: each lane's exponentials are those of
+        // the per-sequence path, bit for bit (`exp_slice` is elementwise).
+        exp_slice(self.shifted.as_flattened_mut());
+        let shifted: &[[Lanes; S]] = as_rows(&self.shifted);
+        let (shift, finite) = (&self.shift, &self.finite);
         let h: &mut [[Lanes; S]] = as_rows_mut(&mut self.h);
         let u: &mut [[Lanes; S]] = as_rows_mut(&mut self.u);
         let next: &mut [[Lanes; S]] = as_rows_mut(&mut self.next);
@@ -308,7 +348,8 @@ impl LaneWorkspace {
             for l in 0..W {
                 act[l] = k < lens[l];
             }
-            self.lc[k] = forward_step(&log_b[k], &mut pred, &mut h[k], &a_t, &act, &mut failed);
+            let frame = (&shifted[k], shift[k], finite[k]);
+            self.lc[k] = forward_step(frame, &mut pred, &mut h[k], &a_t, &act, &mut failed);
             // Backward, from frame t + 1 = T_max − 1 − k to t (lane l active
             // while t + 1 ≤ T_l − 1).
             if k + 1 < t_max {
@@ -321,7 +362,7 @@ impl LaneWorkspace {
                 // tail): no selects.
                 if act.iter().all(|v| *v) {
                     backward_step::<S, true>(
-                        &log_b[t + 1],
+                        (&shifted[t + 1], shift[t + 1], finite[t + 1]),
                         &mut beta,
                         &mut u[t + 1],
                         &mut next[t],
@@ -331,7 +372,7 @@ impl LaneWorkspace {
                     );
                 } else {
                     backward_step::<S, false>(
-                        &log_b[t + 1],
+                        (&shifted[t + 1], shift[t + 1], finite[t + 1]),
                         &mut beta,
                         &mut u[t + 1],
                         &mut next[t],
@@ -435,28 +476,20 @@ fn as_rows_mut<const S: usize>(v: &mut [Lanes]) -> &mut [[Lanes; S]] {
 }
 
 /// One forward fast step for every lane ([`super::forward`]'s `fast_step`,
-/// lane by lane): from the prediction `pred` and the log-densities `lb` of
-/// a frame to the filtered `h` and the next prediction; returns `log c_t`.
-/// Marks an active lane failed where a condition of the fast form fails.
+/// lane by lane): from the prediction `pred` and a frame's shifted densities
+/// (`e^{log b − m}`, the shift `m` and whether every `log b > −∞`, per lane)
+/// to the filtered `h` and the next prediction; returns `log c_t`. Marks an
+/// active lane failed where a condition of the fast form fails.
 #[inline(always)]
 fn forward_step<const S: usize>(
-    lb: &[Lanes; S],
+    (e, m, finite): (&[Lanes; S], Lanes, [bool; W]),
     pred: &mut [Lanes; S],
     h: &mut [Lanes; S],
     a_t: &[[f64; S]; S],
     act: &[bool; W],
     failed: &mut [bool; W],
 ) -> Lanes {
-    let (m, finite) = max_and_finite(lb);
-    let mut o = [[0.0; W]; S];
-    for j in 0..S {
-        for l in 0..W {
-            o[j][l] = lb[j][l] - m[l];
-        }
-    }
-    for oj in o.iter_mut() {
-        exp_lanes(oj);
-    }
+    let mut o = *e;
     for j in 0..S {
         for l in 0..W {
             o[j][l] *= pred[j][l];
@@ -505,12 +538,13 @@ fn max_and_finite<const S: usize>(lb: &[Lanes; S]) -> (Lanes, [bool; W]) {
 }
 
 /// One backward fast step for every lane ([`super::backward`]'s
-/// `fast_step`, lane by lane): from `β̂_{t+1}` (`beta`) and the
-/// log-densities `lb` of frame `t + 1` to `u_{t+1}`, `next_t` and `β̂_t`.
-/// Inactive lanes keep `beta` and write zeros (`FULL`: every lane is active).
+/// `fast_rest`, lane by lane): from `β̂_{t+1}` (`beta`) and the shifted
+/// densities of frame `t + 1` (as [`forward_step`] takes them) to `u_{t+1}`,
+/// `next_t` and `β̂_t`. Inactive lanes keep `beta` and write zeros (`FULL`:
+/// every lane is active).
 #[inline(always)]
 fn backward_step<const S: usize, const FULL: bool>(
-    lb: &[Lanes; S],
+    (e, m, finite): (&[Lanes; S], Lanes, [bool; W]),
     beta: &mut [Lanes; S],
     u: &mut [Lanes; S],
     next: &mut [Lanes; S],
@@ -518,16 +552,7 @@ fn backward_step<const S: usize, const FULL: bool>(
     act: &[bool; W],
     failed: &mut [bool; W],
 ) {
-    let (m, finite) = max_and_finite(lb);
-    let mut w = [[0.0; W]; S];
-    for j in 0..S {
-        for l in 0..W {
-            w[j][l] = lb[j][l] - m[l];
-        }
-    }
-    for wj in w.iter_mut() {
-        exp_lanes(wj);
-    }
+    let mut w = *e;
     for j in 0..S {
         for l in 0..W {
             w[j][l] *= beta[j][l];
@@ -598,6 +623,14 @@ mod tests {
         let s = hmm.n_states();
         let mut lanes = LaneWorkspace::new(hmm);
         let mut ws = PosteriorWorkspace::new(hmm);
+        // The workspace as a fit reuses it: after a longer group of NaN
+        // densities (whose values must not leak into this one).
+        let dirty = vec![70; W];
+        lanes.begin(&dirty);
+        for l in 0..W {
+            lanes.load(l, &vec![f64::NAN; 70 * s]);
+        }
+        lanes.run();
         lanes.begin(lens);
         let mut offsets = Vec::new();
         let mut o = 0;
