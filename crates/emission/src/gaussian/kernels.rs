@@ -577,14 +577,33 @@ fn accumulate_states<V: Lanes, const R: usize, const NV: usize, const G: usize>(
             }
             len.fill(nt);
         } else {
+            // Sharp posteriors leave few weights that count in a row: a
+            // mask of them per vector of states, then only its set bits.
             len.fill(0);
             for (j, row) in rows.chunks_exact(s).enumerate() {
-                for (i, &w) in row.iter().enumerate() {
-                    // Branch-free: the entry is overwritten unless it counts.
-                    let at = i * SUPER_CHUNK + len[i];
-                    listed[at] = j as u32;
-                    listed_w[at] = w;
-                    len[i] += counts(w) as usize;
+                let mut i0 = 0;
+                while i0 < s {
+                    let n = (s - i0).min(V::W);
+                    // SAFETY: lanes `i0 .. i0 + n` of the row exist; a partial
+                    // load reads no further and fills zeros, which do not count.
+                    let mut on = unsafe {
+                        let p = row.as_ptr().add(i0);
+                        if n == V::W {
+                            V::load(p)
+                        } else {
+                            V::load_partial(p, n)
+                        }
+                        .counts_mask()
+                    };
+                    while on != 0 {
+                        let i = i0 + on.trailing_zeros() as usize;
+                        let at = i * SUPER_CHUNK + len[i];
+                        listed[at] = j as u32;
+                        listed_w[at] = row[i];
+                        len[i] += 1;
+                        on &= on - 1;
+                    }
+                    i0 += n;
                 }
             }
         }
@@ -1249,5 +1268,66 @@ mod tests {
             assert_eq!(st.weights()[0], NEGLIGIBLE_WEIGHT, "{kind:?}");
             assert_ne!(run(&at), run(&none), "{kind:?}");
         }
+    }
+
+    /// The listing's mask of the weights that count, in every build this
+    /// CPU runs, is `counts` lane by lane, at the edges: zeros of both signs,
+    /// subnormals, just below and at the threshold, negative weights, the
+    /// infinities and NaNs of both signs.
+    #[test]
+    fn the_mask_of_counting_weights_is_counts_lane_by_lane() {
+        let edge = [
+            0.0,
+            -0.0,
+            1e-310,
+            NEGLIGIBLE_WEIGHT * 0.5,
+            f64::from_bits(NEGLIGIBLE_WEIGHT.to_bits() - 1),
+            NEGLIGIBLE_WEIGHT,
+            -NEGLIGIBLE_WEIGHT,
+            -NEGLIGIBLE_WEIGHT * 0.5,
+            1.0,
+            -1.0,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NAN,
+            -f64::NAN,
+            f64::MAX,
+            f64::MIN_POSITIVE,
+        ];
+        let want = |v: &[f64]| -> u32 {
+            v.iter()
+                .enumerate()
+                .fold(0, |m, (l, w)| m | (counts(*w) as u32) << l)
+        };
+        let mut rng = ChaCha8Rng::seed_from_u64(17);
+        for _ in 0..200 {
+            let v: [f64; 8] = std::array::from_fn(|_| edge[rng.random_range(0..edge.len())]);
+            for isa in Isa::available() {
+                let got = match isa {
+                    // SAFETY: `Isa::available` lists only what this CPU runs.
+                    #[cfg(target_arch = "x86_64")]
+                    Isa::Avx512 => unsafe { mask_avx512(&v) },
+                    #[cfg(target_arch = "x86_64")]
+                    Isa::Avx2 => unsafe { mask_avx2(&v) },
+                    _ => unsafe {
+                        Portable::load(v.as_ptr()).counts_mask()
+                            | Portable::load(v.as_ptr().add(4)).counts_mask() << 4
+                    },
+                };
+                assert_eq!(got, want(&v), "{isa:?}: {v:?}");
+            }
+        }
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    unsafe fn mask_avx2(v: &[f64; 8]) -> u32 {
+        Avx2::load(v.as_ptr()).counts_mask() | Avx2::load(v.as_ptr().add(4)).counts_mask() << 4
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f")]
+    unsafe fn mask_avx512(v: &[f64; 8]) -> u32 {
+        Avx512::load(v.as_ptr()).counts_mask()
     }
 }

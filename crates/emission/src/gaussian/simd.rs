@@ -52,7 +52,18 @@ pub(super) unsafe trait Lanes: Copy {
     unsafe fn min(x: Self, m: Self) -> Self;
     /// `if x > m { x } else { m }`.
     unsafe fn max(x: Self, m: Self) -> Self;
+    /// Bit `l` set where lane `l` is a weight that counts in the statistics
+    /// ([`super::kernels::counts`]: `|w| ≥` [`super::kernels::NEGLIGIBLE_WEIGHT`]
+    /// or NaN), compared as the bits of `|w|`: for non-negative doubles
+    /// their order as integers is their order as numbers, and every NaN lies
+    /// above `+∞`.
+    unsafe fn counts_mask(self) -> u32;
 }
+
+/// The bits of `|w|`, of [`super::kernels::NEGLIGIBLE_WEIGHT`], and the mask
+/// that clears the sign (see [`Lanes::counts_mask`]).
+const ABS_BITS: u64 = !(1 << 63);
+const NEGLIGIBLE_BITS: u64 = super::kernels::NEGLIGIBLE_WEIGHT.to_bits();
 
 /// The portable build: four `f64` lanes, plain arithmetic and
 /// [`f64::mul_add`] (vectorised by the compiler where the target allows).
@@ -129,6 +140,12 @@ unsafe impl Lanes for Portable {
             }
         }))
     }
+    #[inline(always)]
+    unsafe fn counts_mask(self) -> u32 {
+        self.0.iter().enumerate().fold(0, |m, (l, w)| {
+            m | (((w.to_bits() & ABS_BITS) >= NEGLIGIBLE_BITS) as u32) << l
+        })
+    }
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -136,7 +153,7 @@ pub(super) use x86::{Avx2, Avx512};
 
 #[cfg(target_arch = "x86_64")]
 mod x86 {
-    use super::Lanes;
+    use super::{Lanes, ABS_BITS, NEGLIGIBLE_BITS};
     use std::arch::x86_64::*;
 
     /// Four lanes in an AVX2 register (`vfmadd…pd ymm` for [`Lanes::fma`]).
@@ -208,6 +225,17 @@ mod x86 {
         unsafe fn max(x: Self, m: Self) -> Self {
             Avx2(_mm256_max_pd(x.0, m.0))
         }
+        #[inline(always)]
+        unsafe fn counts_mask(self) -> u32 {
+            // No unsigned 64-bit comparison in AVX2; the bits of `|w|` are
+            // below 2⁶³, so the signed `abs > NEGLIGIBLE − 1` is the same.
+            let abs = _mm256_and_si256(
+                _mm256_castpd_si256(self.0),
+                _mm256_set1_epi64x(ABS_BITS as i64),
+            );
+            let on = _mm256_cmpgt_epi64(abs, _mm256_set1_epi64x(NEGLIGIBLE_BITS as i64 - 1));
+            _mm256_movemask_pd(_mm256_castsi256_pd(on)) as u32
+        }
     }
 
     /// Eight lanes in an AVX-512 register.
@@ -271,6 +299,14 @@ mod x86 {
         #[inline(always)]
         unsafe fn max(x: Self, m: Self) -> Self {
             Avx512(_mm512_max_pd(x.0, m.0))
+        }
+        #[inline(always)]
+        unsafe fn counts_mask(self) -> u32 {
+            let abs = _mm512_and_si512(
+                _mm512_castpd_si512(self.0),
+                _mm512_set1_epi64(ABS_BITS as i64),
+            );
+            _mm512_cmpge_epu64_mask(abs, _mm512_set1_epi64(NEGLIGIBLE_BITS as i64)) as u32
         }
     }
 }

@@ -200,16 +200,10 @@ impl ForwardCore {
     ) -> f64 {
         if !self.log_mode && self.all_reachable && self.dense && !m.is_nan() {
             let fast = match self.pred.len() {
-                1 => self.fast_rest::<1>(*<&[Lanes; 1]>::try_from(shifted).expect("1 chunk"), m, h),
-                2 => {
-                    self.fast_rest::<2>(*<&[Lanes; 2]>::try_from(shifted).expect("2 chunks"), m, h)
-                }
-                3 => {
-                    self.fast_rest::<3>(*<&[Lanes; 3]>::try_from(shifted).expect("3 chunks"), m, h)
-                }
-                4 => {
-                    self.fast_rest::<4>(*<&[Lanes; 4]>::try_from(shifted).expect("4 chunks"), m, h)
-                }
+                1 => self.fast_rest::<1>(shifted, m, h),
+                2 => self.fast_rest::<2>(shifted, m, h),
+                3 => self.fast_rest::<3>(shifted, m, h),
+                4 => self.fast_rest::<4>(shifted, m, h),
                 _ => self.fast_dyn_rest(shifted, m, h),
             };
             if let Some(lc) = fast {
@@ -236,17 +230,13 @@ impl ForwardCore {
         }
         let mut o = [[0.0; W]; C];
         exp_shifted(&log_b, m, &mut o);
-        self.fast_rest::<C>(o, m, h)
+        self.fast_rest::<C>(&o, m, h)
     }
 
-    /// The fast step from `o = e^{log b − m}`.
+    /// The fast step from `e = e^{log b − m}` (`C` chunks).
     #[inline(always)]
-    fn fast_rest<const C: usize>(
-        &mut self,
-        mut o: [Lanes; C],
-        m: f64,
-        h: &mut [Lanes],
-    ) -> Option<f64> {
+    fn fast_rest<const C: usize>(&mut self, e: &[Lanes], m: f64, h: &mut [Lanes]) -> Option<f64> {
+        let mut o: [Lanes; C] = *<&[Lanes; C]>::try_from(e).expect("C chunks");
         let pred: [Lanes; C] = *<&[Lanes; C]>::try_from(self.pred.as_slice()).expect("C chunks");
         for (ok, pk) in o.iter_mut().zip(&pred) {
             for l in 0..W {
