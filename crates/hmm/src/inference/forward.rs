@@ -542,4 +542,34 @@ pub(super) mod tests {
             "the fast form ran on {fast_total} frames only, given the exponentials on {shifted_total}"
         );
     }
+
+    /// The batch forward pass (every frame's exponentials taken first) and
+    /// the online filter's step on unpadded rows give the same bits, frame
+    /// by frame, impossible frames included.
+    #[test]
+    fn the_batch_forward_pass_is_the_online_step_to_the_bit() {
+        for seed in 0..120 {
+            let s = 1 + (seed as usize % 40);
+            let (hmm, log_b) = random_case(seed, s, 90, seed % 3 == 0);
+            let batch = hmm.forward_from(&log_b);
+            let mut core = ForwardCore::new(&hmm);
+            let mut h = vec![0.0; s];
+            for (t, lb) in log_b.chunks_exact(s).enumerate() {
+                let lc = core.step_row_inline(lb, &mut h);
+                assert_eq!(
+                    lc.to_bits(),
+                    batch.log_normalisers()[t].to_bits(),
+                    "seed {seed}, frame {t}"
+                );
+                assert_eq!(
+                    bits(&h),
+                    bits(&batch.filtered()[t * s..(t + 1) * s]),
+                    "seed {seed}, frame {t}"
+                );
+                if lc == f64::NEG_INFINITY {
+                    break;
+                }
+            }
+        }
+    }
 }

@@ -251,6 +251,36 @@ pub(crate) fn padded(v: &[f64], pad: f64, out: &mut [Lanes]) {
     }
 }
 
+/// The padded rows of `log_b` (`T × S`; padding [`PAD_LOG_B`]) into
+/// `rows`, and what [`super::forward::ForwardCore::step_shifted_inline`] and
+/// [`super::backward::BackwardCore::step_shifted_inline`] take for each:
+/// `e^{log b_t − m_t}` into `shifted` and the shift `m_t` ([`fast_shift`],
+/// NaN for a frame the fast form does not take) into `shift`. The
+/// exponentials of every frame are taken in one pass (they overlap there,
+/// where a step's own would wait on the recursion); blocks of 8 are the rows'
+/// chunks, as in [`exp_shifted`], so every value has the same bits.
+#[inline(always)]
+pub(crate) fn shifted_rows(
+    log_b: &[f64],
+    s: usize,
+    rows: &mut [Lanes],
+    shifted: &mut [Lanes],
+    shift: &mut [f64],
+) {
+    let c = chunks(s);
+    for (((lb, row), e), m) in log_b
+        .chunks_exact(s)
+        .zip(rows.chunks_exact_mut(c))
+        .zip(shifted.chunks_exact_mut(c))
+        .zip(shift.iter_mut())
+    {
+        padded(lb, PAD_LOG_B, row);
+        *m = fast_shift(row);
+        shifted_arguments(row, *m, e);
+    }
+    exp_slice(shifted.as_flattened_mut());
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

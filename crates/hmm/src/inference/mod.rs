@@ -100,6 +100,41 @@ pub struct Posteriors {
     pub log_likelihood: f64,
 }
 
+/// A sequence's padded log-density rows with their shifted densities
+/// ([`kernels::shifted_rows`]), for the forward steps.
+struct ShiftedRows {
+    c: usize,
+    rows: Vec<kernels::Lanes>,
+    shifted: Vec<kernels::Lanes>,
+    shift: Vec<f64>,
+}
+
+impl ShiftedRows {
+    fn new(t_len: usize, s: usize) -> Self {
+        let c = kernels::chunks(s);
+        ShiftedRows {
+            c,
+            rows: vec![[0.0; kernels::W]; t_len * c],
+            shifted: vec![[0.0; kernels::W]; t_len * c],
+            shift: vec![0.0; t_len],
+        }
+    }
+
+    /// The rows of `log_b` (`T × S`); in the build of the caller.
+    #[inline(always)]
+    fn fill(&mut self, log_b: &[f64], s: usize) {
+        kernels::shifted_rows(log_b, s, &mut self.rows, &mut self.shifted, &mut self.shift);
+    }
+
+    /// The forward step of frame `k` (the same bits as
+    /// [`ForwardCore::step_row_inline`] on row `k`); in the build of the caller.
+    #[inline(always)]
+    fn step(&self, core: &mut ForwardCore, k: usize, h: &mut [kernels::Lanes]) -> f64 {
+        let r = k * self.c..(k + 1) * self.c;
+        core.step_shifted_inline(&self.rows[r.clone()], &self.shifted[r], self.shift[k], h)
+    }
+}
+
 impl<E: Emission> Hmm<E> {
     /// `log b_i(x_t)` for every frame, `T × S` row-major.
     pub fn emission_log_densities(&self, seq: Frames<'_>) -> Result<Vec<f64>> {
@@ -113,16 +148,20 @@ impl<E: Emission> Hmm<E> {
         let t_len = log_b.len() / s;
         let mut filtered = vec![0.0; log_b.len()];
         let mut log_normalisers = vec![f64::NEG_INFINITY; t_len];
+        let mut rows = ShiftedRows::new(t_len, s);
         let mut core = ForwardCore::new(self);
+        let mut h = vec![[0.0; kernels::W]; rows.c];
         dispatch(
             #[inline(always)]
             || {
-                for ((lb, h), lc) in log_b
-                    .chunks_exact(s)
-                    .zip(filtered.chunks_exact_mut(s))
+                rows.fill(log_b, s);
+                for (k, (out, lc)) in filtered
+                    .chunks_exact_mut(s)
                     .zip(log_normalisers.iter_mut())
+                    .enumerate()
                 {
-                    *lc = core.step_row_inline(lb, h);
+                    *lc = rows.step(&mut core, k, &mut h);
+                    out.copy_from_slice(&h.as_flattened()[..s]);
                     if *lc == f64::NEG_INFINITY {
                         // Everything after an impossible frame is impossible too.
                         break;
@@ -147,14 +186,16 @@ impl<E: Emission> Hmm<E> {
     pub fn log_likelihood(&self, seq: Frames<'_>) -> Result<f64> {
         let log_b = self.emission_log_densities(seq)?;
         let s = self.n_states();
+        let mut rows = ShiftedRows::new(log_b.len() / s, s);
         let mut core = ForwardCore::new(self);
-        let mut h = vec![0.0; s];
+        let mut h = vec![[0.0; kernels::W]; rows.c];
         Ok(dispatch(
             #[inline(always)]
             || {
+                rows.fill(&log_b, s);
                 let mut ll = 0.0;
-                for lb in log_b.chunks_exact(s) {
-                    let lc = core.step_row_inline(lb, &mut h);
+                for k in 0..rows.shift.len() {
+                    let lc = rows.step(&mut core, k, &mut h);
                     if lc == f64::NEG_INFINITY {
                         return lc;
                     }

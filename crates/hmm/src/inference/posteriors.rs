@@ -18,9 +18,7 @@
 
 use super::backward::BackwardCore;
 use super::forward::ForwardCore;
-use super::kernels::{
-    chunks, dot_lanes, fast_shift, padded, shifted_arguments, Lanes, PAD_LOG_B, SAFE, W,
-};
+use super::kernels::{chunks, dot_lanes, shifted_rows, Lanes, SAFE, W};
 use crate::error::{HmmError, Result};
 use crate::model::Hmm;
 use phasekit_emission::linalg::{dispatch, exp_slice, log_sum_exp};
@@ -129,20 +127,13 @@ impl PosteriorWorkspace {
         let (s, c) = (self.s, self.c);
         let t_len = self.lc.len();
         debug_assert!(t_len > 0 && self.log_b.len() == t_len * s);
-        for (((row, lb), e), m) in self
-            .log_b_padded
-            .chunks_exact_mut(c)
-            .zip(self.log_b.chunks_exact(s))
-            .zip(self.shifted.chunks_exact_mut(c))
-            .zip(self.shift.iter_mut())
-        {
-            padded(lb, PAD_LOG_B, row);
-            *m = fast_shift(row);
-            shifted_arguments(row, *m, e);
-        }
-        // The blocks of 8 are the rows' chunks, as in `exp_shifted`: the
-        // same bits, with the frames' exponentials overlapping.
-        exp_slice(self.shifted.as_flattened_mut());
+        shifted_rows(
+            &self.log_b,
+            s,
+            &mut self.log_b_padded,
+            &mut self.shifted,
+            &mut self.shift,
+        );
         self.forward.reset();
         self.backward.reset();
         let mut backward_ok = true;
