@@ -12,8 +12,10 @@
 //!                                 250 frames: time and peak resident memory
 //! bench_compare threads [REPS]    workload 2 on 1 and on 2 threads: time per
 //!                                 iteration, log-likelihoods and a parameter hash
-//! bench_compare breakdown [FILTER] where one Baum-Welch iteration spends its time
-//!                                 (forward-backward = E-step − log-densities − statistics)
+//! bench_compare breakdown [FILTER] [fitted]
+//!                                 where one Baum-Welch iteration spends its time
+//!                                 (forward-backward = E-step − log-densities − statistics),
+//!                                 at the initial model or (`fitted`) at the fitted one
 //! bench_compare steps NAME...     which path the E-step's recursions take (lane form,
 //!                                 per-sequence fast and general steps), at the initial
 //!                                 and at the fitted model
@@ -350,7 +352,7 @@ fn threads(reps: usize) {
     }
 }
 
-fn breakdown(filter: &str) {
+fn breakdown(filter: &str, fitted: bool) {
     use phasekit::emission::Emission;
     let mut ws: Vec<HmmWorkload> = Vec::new();
     for (c, k) in [
@@ -372,7 +374,8 @@ fn breakdown(filter: &str) {
     println!("| workload | log-densities | forward-backward | statistics | M-step | sum (ms) | forward-backward share |");
     println!("|---|---|---|---|---|---|---|");
     for w in ws.iter().filter(|w| w.name.contains(filter)) {
-        let h = &w.init;
+        let model = fitted.then(|| fit_hmm(w, 1).model);
+        let h = model.as_ref().unwrap_or(&w.init);
         let e = h.emission();
         let best = |f: &mut dyn FnMut()| -> f64 {
             (0..5)
@@ -601,7 +604,10 @@ fn main() {
         Some("peak") => println!("peak_gflops {:.2}", peak()),
         Some("kernels") => kernels(),
         Some("online") => online(),
-        Some("breakdown") => breakdown(args.get(2).map(String::as_str).unwrap_or("")),
+        Some("breakdown") => breakdown(
+            args.get(2).map(String::as_str).unwrap_or(""),
+            args.get(3).is_some_and(|a| a == "fitted"),
+        ),
         Some("scaling") => scaling(args.get(2).and_then(|v| v.parse().ok()).expect("FRAMES")),
         Some("threads") => threads(args.get(2).and_then(|v| v.parse().ok()).unwrap_or(3)),
         Some("steps") => {

@@ -23,7 +23,7 @@
 
 use super::kernels::{
     all_at_least, chunks, exp_shifted, padded, padded_rows, scale_lanes, sum_lanes, vec_mat,
-    vec_mat_dyn, Lanes, RESCALE, SAFE, W,
+    vec_mat_dyn, vec_mat_into, Lanes, RESCALE, SAFE, W,
 };
 use crate::model::Hmm;
 use phasekit_emission::linalg::{exp_slice, log_sum_exp};
@@ -280,7 +280,7 @@ impl BackwardCore {
             shift = m + total.ln();
         }
         let u = &u_padded.as_flattened()[..s];
-        vec_mat_dyn(u, &self.transition_t, next_padded, &mut self.odd);
+        vec_mat_into(u, &self.transition_t, next_padded, &mut self.odd);
         let next = &next_padded.as_flattened()[..s];
         // β_t: linear if every structurally positive entry is ≥ SAFE.
         let a = &self.transition;

@@ -31,7 +31,7 @@
 
 use super::kernels::{
     all_at_least, all_positive_densities, chunks, exp_shifted, max_lanes, padded, padded_rows,
-    scale_lanes, sum_lanes, vec_mat, vec_mat_dyn, Lanes, PAD_LOG_B, RESCALE, SAFE, W,
+    scale_lanes, sum_lanes, vec_mat, vec_mat_dyn, vec_mat_into, Lanes, PAD_LOG_B, RESCALE, SAFE, W,
 };
 use crate::model::Hmm;
 use phasekit_emission::linalg::{dispatch, exp_slice, ln, log_sum_exp};
@@ -377,7 +377,7 @@ impl ForwardCore {
         // underflowed) although the state is reachable: only such columns are
         // recomputed in log space, and the prediction is then carried in log
         // form (exact columns as `ln p_j`).
-        vec_mat_dyn(h, &self.transition, &mut self.pred_next, &mut self.odd);
+        vec_mat_into(h, &self.transition, &mut self.pred_next, &mut self.odd);
         let a = &self.transition_dense;
         let pred_next = self.pred_next.as_flattened();
         let mut any_inexact = false;

@@ -222,6 +222,22 @@ pub(crate) fn vec_mat_dyn(v: &[f64], m: &[Lanes], out: &mut [Lanes], odd: &mut [
     }
 }
 
+/// [`vec_mat`] into `out` for any number of chunks: in registers for up to
+/// four ([`vec_mat`]), through memory beyond ([`vec_mat_dyn`]); the same bits
+/// either way. For the general steps, which run on every frame of a fitted
+/// left-to-right model (through memory, each row's update waited on the
+/// previous one's store).
+#[inline(always)]
+pub(crate) fn vec_mat_into(v: &[f64], m: &[Lanes], out: &mut [Lanes], odd: &mut [Lanes]) {
+    match out.len() {
+        1 => out.copy_from_slice(&vec_mat::<1>(v, m)),
+        2 => out.copy_from_slice(&vec_mat::<2>(v, m)),
+        3 => out.copy_from_slice(&vec_mat::<3>(v, m)),
+        4 => out.copy_from_slice(&vec_mat::<4>(v, m)),
+        _ => vec_mat_dyn(v, m, out, odd),
+    }
+}
+
 /// A row-major `S × S` matrix as `S` padded rows of `chunks(S)` chunks.
 pub(crate) fn padded_rows(m: &[f64], s: usize) -> Vec<Lanes> {
     let c = chunks(s);
@@ -294,6 +310,19 @@ mod tests {
             let m = padded_rows(&dense, s);
             let (mut out, mut odd) = (vec![[0.0; W]; c], vec![[0.0; W]; c]);
             vec_mat_dyn(&v, &m, &mut out, &mut odd);
+            let (mut into, mut odd) = (vec![[f64::NAN; W]; c], vec![[f64::NAN; W]; c]);
+            vec_mat_into(&v, &m, &mut into, &mut odd);
+            assert_eq!(
+                into.as_flattened()
+                    .iter()
+                    .map(|x| x.to_bits())
+                    .collect::<Vec<_>>(),
+                out.as_flattened()
+                    .iter()
+                    .map(|x| x.to_bits())
+                    .collect::<Vec<_>>(),
+                "s = {s}"
+            );
             let fixed: Vec<Lanes> = match c {
                 1 => vec_mat::<1>(&v, &m).to_vec(),
                 2 => vec_mat::<2>(&v, &m).to_vec(),
