@@ -493,6 +493,17 @@ unsafe fn full_one_frame_avx2_fma(g: &Gaussian, x: &[f64], out: &mut [f64]) {
 /// Frames whose weights are sorted into per-state lists at once.
 const SUPER_CHUNK: usize = 256;
 
+/// `0, 1, …, SUPER_CHUNK − 1`: the list of a super-chunk whose weights all count.
+const IN_ORDER: [u32; SUPER_CHUNK] = {
+    let mut v = [0; SUPER_CHUNK];
+    let mut j = 0;
+    while j < SUPER_CHUNK {
+        v[j] = j as u32;
+        j += 1;
+    }
+    v
+};
+
 /// Frames gathered per pass of the tiles: the centred and the weighted
 /// copies (`2 · m · Dp` values) stay within 16 KiB of L1.
 fn chunk_frames(dp: usize) -> usize {
@@ -517,7 +528,8 @@ struct Running {
 /// counts. Then, state by state, the listed frames go by chunks of
 /// [`chunk_frames`]: [`centre_weight`] forms the centred `e = x − c_i` and
 /// weighted `a = w·e` copies (frame-major, rows padded to whole vectors with
-/// zeros) and updates `n_i`, `s_i` and the range; [`rank1_tiles`] loads every
+/// zeros) and updates `s_i` and the range (`n_i` is summed over the chunk's
+/// weights before, in frame order); [`rank1_tiles`] loads every
 /// tile of the lower triangle of `Q_i` into registers, updates it by the
 /// rank-1 terms `a_r e_cᵀ` of the chunk's frames in order, and stores it
 /// (entries above the diagonal are computed in the diagonal tiles but never
@@ -560,7 +572,6 @@ fn accumulate_states<V: Lanes, const R: usize, const NV: usize, const G: usize>(
     let mut listed = vec![0u32; s * SUPER_CHUNK];
     let mut listed_w = vec![0.0; s * SUPER_CHUNK];
     let mut len = vec![0usize; s];
-    let in_order: Vec<u32> = (0..SUPER_CHUNK as u32).collect();
     let mut t0 = 0;
     while t0 < t_len {
         let nt = (t_len - t0).min(SUPER_CHUNK);
@@ -616,7 +627,7 @@ fn accumulate_states<V: Lanes, const R: usize, const NV: usize, const G: usize>(
             }
             let dense = n_i == nt;
             let offsets = if every {
-                &in_order[..n_i]
+                &IN_ORDER[..n_i]
             } else {
                 &listed[i * SUPER_CHUNK..i * SUPER_CHUNK + n_i]
             };

@@ -135,8 +135,8 @@ pub fn exp_slice(v: &mut [f64]) {
 
 /// `v_l ← e^{v_l}` on the eight lanes of one block: the same bits as
 /// [`exp_slice`] (a block whose lanes all underflow is cleared), without
-/// its per-block barrier, so that the caller's independent blocks (the
-/// states of the HMM's lane form) interleave. In the build of its caller.
+/// its per-block barrier, so that a caller's independent blocks interleave.
+/// In the build of its caller.
 #[inline(always)]
 pub fn exp_lanes(v: &mut [f64; EXP_BLOCK]) {
     let zero = v.iter().fold(true, |z, x| z & (*x < EXP_UNDERFLOW));

@@ -125,6 +125,13 @@ impl ForwardCore {
         core
     }
 
+    /// Whether the fast form of the step can ever apply (every `a_ij > 0`):
+    /// otherwise the shifted densities of [`ForwardCore::step_shifted_inline`]
+    /// would never be read.
+    pub(crate) fn can_step_fast(&self) -> bool {
+        self.dense
+    }
+
     /// Back to the initial distribution (before the first frame).
     pub(crate) fn reset(&mut self) {
         self.pred.copy_from_slice(&self.start);
@@ -186,7 +193,8 @@ impl ForwardCore {
     /// [`ForwardCore::step_inline`] with the frame's shifted densities
     /// computed beforehand: `shifted = e^{log b − m}` (as [`exp_shifted`]
     /// gives them) with `m = max_j log b_j`, or `m` NaN when the frame cannot
-    /// take the fast form (a zero density, `m = +∞`). The same bits as
+    /// take the fast form (a zero or NaN density, `m = +∞`; see
+    /// [`super::kernels::fast_shift`]). The same bits as
     /// [`ForwardCore::step_inline`]; a caller that has every frame at once
     /// takes the exponentials of all of them in one pass, where they overlap,
     /// instead of one frame's on the recursion's critical path.

@@ -216,10 +216,10 @@ impl LaneWorkspace {
         self.lens[..self.n].copy_from_slice(lens);
         self.t_max = lens.iter().copied().max().unwrap_or(0);
         let len = self.t_max * self.s;
-        // Lanes past a sequence's end read `log b = 0` (their results are
-        // discarded, but must not be NaN from an earlier group, which could
-        // slow the arithmetic); every other buffer is written in full by
-        // `run` before it is read, so it keeps its old contents here.
+        // `load` writes only a lane's first `T_l` rows: past a sequence's
+        // end its lane reads `log b = 0` (results discarded), not an earlier
+        // group's values. Every other buffer is written in full by `run`
+        // before it is read, so it keeps its old contents here.
         self.log_b.clear();
         self.log_b.resize(len, [0.0; W]);
         for v in [&mut self.h, &mut self.u, &mut self.next, &mut self.shifted] {

@@ -51,9 +51,11 @@ pub(crate) fn sum_lanes(v: &[Lanes]) -> f64 {
 }
 
 /// `out_k = e^{v_k − m}` on every lane, in one vectorised pass of
-/// exponentials: the shift-and-exponentiate that opens every scaled step of
-/// the forward and backward recursions (`e^{log b_j − m}`, `m` the largest
-/// log-density, so that the largest term is 1 and none overflows).
+/// exponentials: the shift-and-exponentiate of a scaled step of the forward
+/// and backward recursions (`e^{log b_j − m}`, `m` the largest log-density,
+/// so that the largest term is 1 and none overflows) — taken by the general
+/// steps and the online step themselves; the batch passes take every frame's
+/// at once ([`shifted_rows`]), with the same bits.
 #[inline(always)]
 pub(crate) fn exp_shifted(v: &[Lanes], m: f64, out: &mut [Lanes]) {
     for (ok, vk) in out.iter_mut().zip(v) {
@@ -274,16 +276,23 @@ pub(crate) fn padded(v: &[f64], pad: f64, out: &mut [Lanes]) {
 /// NaN for a frame the fast form does not take) into `shift`. The
 /// exponentials of every frame are taken in one pass (they overlap there,
 /// where a step's own would wait on the recursion); blocks of 8 are the rows'
-/// chunks, as in [`exp_shifted`], so every value has the same bits.
+/// chunks, as in [`exp_shifted`], so every value has the same bits. The
+/// buffers hold at least the frames of `log_b`.
+///
+/// With `fast` false (a model whose steps never take the fast form: some
+/// `a_ij = 0`), only the rows are padded and every shift is NaN: the general
+/// steps take their own exponentials, so these would be thrown away.
 #[inline(always)]
 pub(crate) fn shifted_rows(
     log_b: &[f64],
     s: usize,
+    fast: bool,
     rows: &mut [Lanes],
     shifted: &mut [Lanes],
     shift: &mut [f64],
 ) {
-    let c = chunks(s);
+    let (c, frames) = (chunks(s), log_b.len() / s);
+    debug_assert!(rows.len() >= frames * c && shifted.len() >= frames * c && shift.len() >= frames);
     for (((lb, row), e), m) in log_b
         .chunks_exact(s)
         .zip(rows.chunks_exact_mut(c))
@@ -291,10 +300,14 @@ pub(crate) fn shifted_rows(
         .zip(shift.iter_mut())
     {
         padded(lb, PAD_LOG_B, row);
-        *m = fast_shift(row);
-        shifted_arguments(row, *m, e);
+        *m = if fast { fast_shift(row) } else { f64::NAN };
+        if fast {
+            shifted_arguments(row, *m, e);
+        }
     }
-    exp_slice(shifted.as_flattened_mut());
+    if fast {
+        exp_slice(shifted[..frames * c].as_flattened_mut());
+    }
 }
 
 #[cfg(test)]

@@ -101,37 +101,69 @@ pub struct Posteriors {
 }
 
 /// A sequence's padded log-density rows with their shifted densities
-/// ([`kernels::shifted_rows`]), for the forward steps.
+/// ([`kernels::shifted_rows`]), [`ShiftedRows::BLOCK`] frames at a time (a
+/// few kilobytes whatever the sequence's length), for the forward steps.
 struct ShiftedRows {
+    s: usize,
     c: usize,
+    fast: bool,
     rows: Vec<kernels::Lanes>,
     shifted: Vec<kernels::Lanes>,
     shift: Vec<f64>,
 }
 
 impl ShiftedRows {
-    fn new(t_len: usize, s: usize) -> Self {
+    /// Frames per block: long enough for the exponentials of a block to
+    /// overlap, short enough to stay in L1 with the recursion's data.
+    const BLOCK: usize = 64;
+
+    fn new(core: &ForwardCore, s: usize) -> Self {
         let c = kernels::chunks(s);
         ShiftedRows {
+            s,
             c,
-            rows: vec![[0.0; kernels::W]; t_len * c],
-            shifted: vec![[0.0; kernels::W]; t_len * c],
-            shift: vec![0.0; t_len],
+            fast: core.can_step_fast(),
+            rows: vec![[0.0; kernels::W]; Self::BLOCK * c],
+            shifted: vec![[0.0; kernels::W]; Self::BLOCK * c],
+            shift: vec![0.0; Self::BLOCK],
         }
     }
 
-    /// The rows of `log_b` (`T × S`); in the build of the caller.
+    /// The forward steps of every frame of `log_b` (`T × S`) in order:
+    /// `each(t, log c_t, h_t)` after frame `t`'s step (the same bits as
+    /// [`ForwardCore::step_row_inline`] on row `t`); stops after a frame for
+    /// which `each` returns false. In the build of the caller.
     #[inline(always)]
-    fn fill(&mut self, log_b: &[f64], s: usize) {
-        kernels::shifted_rows(log_b, s, &mut self.rows, &mut self.shifted, &mut self.shift);
-    }
-
-    /// The forward step of frame `k` (the same bits as
-    /// [`ForwardCore::step_row_inline`] on row `k`); in the build of the caller.
-    #[inline(always)]
-    fn step(&self, core: &mut ForwardCore, k: usize, h: &mut [kernels::Lanes]) -> f64 {
-        let r = k * self.c..(k + 1) * self.c;
-        core.step_shifted_inline(&self.rows[r.clone()], &self.shifted[r], self.shift[k], h)
+    fn run(
+        &mut self,
+        core: &mut ForwardCore,
+        log_b: &[f64],
+        h: &mut [kernels::Lanes],
+        mut each: impl FnMut(usize, f64, &[kernels::Lanes]) -> bool,
+    ) {
+        let (s, c) = (self.s, self.c);
+        for (b, block) in log_b.chunks(Self::BLOCK * s).enumerate() {
+            kernels::shifted_rows(
+                block,
+                s,
+                self.fast,
+                &mut self.rows,
+                &mut self.shifted,
+                &mut self.shift,
+            );
+            for k in 0..block.len() / s {
+                let r = k * c..(k + 1) * c;
+                let lc = core.step_shifted_inline(
+                    &self.rows[r.clone()],
+                    &self.shifted[r],
+                    self.shift[k],
+                    h,
+                );
+                if !each(b * Self::BLOCK + k, lc, h) {
+                    return;
+                }
+            }
+        }
     }
 }
 
@@ -148,25 +180,18 @@ impl<E: Emission> Hmm<E> {
         let t_len = log_b.len() / s;
         let mut filtered = vec![0.0; log_b.len()];
         let mut log_normalisers = vec![f64::NEG_INFINITY; t_len];
-        let mut rows = ShiftedRows::new(t_len, s);
         let mut core = ForwardCore::new(self);
+        let mut rows = ShiftedRows::new(&core, s);
         let mut h = vec![[0.0; kernels::W]; rows.c];
         dispatch(
             #[inline(always)]
             || {
-                rows.fill(log_b, s);
-                for (k, (out, lc)) in filtered
-                    .chunks_exact_mut(s)
-                    .zip(log_normalisers.iter_mut())
-                    .enumerate()
-                {
-                    *lc = rows.step(&mut core, k, &mut h);
-                    out.copy_from_slice(&h.as_flattened()[..s]);
-                    if *lc == f64::NEG_INFINITY {
-                        // Everything after an impossible frame is impossible too.
-                        break;
-                    }
-                }
+                rows.run(&mut core, log_b, &mut h, |t, lc, h| {
+                    log_normalisers[t] = lc;
+                    filtered[t * s..(t + 1) * s].copy_from_slice(&h.as_flattened()[..s]);
+                    // Everything after an impossible frame is impossible too.
+                    lc != f64::NEG_INFINITY
+                });
             },
         );
         Forward {
@@ -186,21 +211,21 @@ impl<E: Emission> Hmm<E> {
     pub fn log_likelihood(&self, seq: Frames<'_>) -> Result<f64> {
         let log_b = self.emission_log_densities(seq)?;
         let s = self.n_states();
-        let mut rows = ShiftedRows::new(log_b.len() / s, s);
         let mut core = ForwardCore::new(self);
+        let mut rows = ShiftedRows::new(&core, s);
         let mut h = vec![[0.0; kernels::W]; rows.c];
         Ok(dispatch(
             #[inline(always)]
             || {
-                rows.fill(&log_b, s);
                 let mut ll = 0.0;
-                for k in 0..rows.shift.len() {
-                    let lc = rows.step(&mut core, k, &mut h);
+                rows.run(&mut core, &log_b, &mut h, |_, lc, _| {
                     if lc == f64::NEG_INFINITY {
-                        return lc;
+                        ll = lc;
+                        return false;
                     }
                     ll += lc;
-                }
+                    true
+                });
                 ll
             },
         ))

@@ -130,6 +130,7 @@ impl PosteriorWorkspace {
         shifted_rows(
             &self.log_b,
             s,
+            self.forward.can_step_fast(),
             &mut self.log_b_padded,
             &mut self.shifted,
             &mut self.shift,
