@@ -679,7 +679,7 @@ fn run_seed(
     // factor fitted on its training folds.
     let predictor = model
         .predictor(&roles)
-        .and_then(|p| p.with_covariance_scale(fit_summary.covariance_scale()))
+        .and_then(|p| p.with_calibration(&fit_summary))
         .map_err(|e| e.to_string())?;
     let o = layout.robot.len();
     let (mut se, mut frames, mut predict_seconds) = (0.0, 0usize, 0.0);

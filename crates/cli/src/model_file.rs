@@ -32,12 +32,15 @@ pub const FORMAT: &str = "phasekit-model";
 /// * 3: `auto`'s covariance calibrated by left-out demonstrations (its rule
 ///   written by name, `"calibration": "demonstrations"`, which version-2
 ///   readers, who know it as a flag, cannot read) and the regularisation
-///   relative to the positions (`"reg_units": "positions"`).
+///   relative to the positions (`"reg_units": "positions"`);
+/// * 4: `auto`'s covariance calibrated for a new demonstration
+///   (`"calibration": "predictive"`), with a covariance added to the model's
+///   before scaling (`added_covariance`), which version-3 readers would ignore.
 ///
 /// A file is written with the lowest version that describes its model
 /// ([`version_for`]), so a model an older phasekit can use stays readable by
 /// it; this build reads every version from 1 to [`VERSION`].
-pub const VERSION: u64 = 3;
+pub const VERSION: u64 = 4;
 
 /// The lowest model-file version that describes `model` fitted by `method`
 /// (see [`VERSION`]): 3 for what version-2 readers do not know — a
@@ -80,6 +83,7 @@ fn method_version(method: &Method) -> u64 {
                 Calibration::Off => 1,
                 Calibration::Frames => 2,
                 Calibration::Demonstrations => 3,
+                Calibration::Predictive => 4,
             }])
             .max()
             .unwrap_or(1),

@@ -224,10 +224,7 @@ impl RobotPrediction {
 /// The model's batch predictor, with the covariance calibration its fit
 /// recorded (`auto`), if any.
 pub fn predictor(mf: &ModelFile) -> Result<Predictor> {
-    Ok(mf
-        .model
-        .predictor(&mf.roles)?
-        .with_covariance_scale(mf.fit.covariance_scale())?)
+    Ok(mf.model.predictor(&mf.roles)?.with_calibration(&mf.fit)?)
 }
 
 fn observed_counts(frames: &[f64], d: usize) -> Vec<usize> {

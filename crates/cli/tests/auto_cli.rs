@@ -150,9 +150,9 @@ fn auto_keys_are_validated() {
 }
 
 /// `auto` calibrates its predictive covariance on its folds, says so in the
-/// report and the model file, and `predict --covariance` applies the factor
-/// to every covariance and never to the mean (against the same choice with
-/// `calibrate=off`).
+/// report and the model file, and `predict --covariance` applies the added
+/// covariance and the factor, `scale · (Σ + A)`, to every covariance and
+/// never to the mean (against the same choice with `calibrate=off`).
 #[test]
 fn predict_applies_autos_calibration_to_the_covariance_only() {
     let (dir, data) = interaction_folder(6, 3, 6, plain);
@@ -184,10 +184,11 @@ fn predict_applies_autos_calibration_to_the_covariance_only() {
         .all(|r| r["coverage"].as_f64().is_some()));
     let file = std::fs::read_to_string(&on).unwrap();
     assert!(file.contains("\"covariance_calibration\""));
-    // A version-1 reader would ignore the factor, and a version-2 reader
-    // does not know the rule by name (`demonstrations`): the file says version 3.
+    // A version-1 reader would ignore the factor, a version-2 reader does
+    // not know a rule by name, a version-3 reader not the `predictive` rule
+    // (nor the covariance it adds): the file says version 4.
     let v: serde_json::Value = serde_json::from_str(&file).unwrap();
-    assert_eq!(v["version"], 3);
+    assert_eq!(v["version"], 4);
 
     let test = std::fs::read_dir(&data)
         .unwrap()
@@ -225,16 +226,32 @@ fn predict_applies_autos_calibration_to_the_covariance_only() {
     let (h_on, p_on) = predict(&on, "on.csv");
     let (h_off, p_off) = predict(&off, "off.csv");
     assert_eq!(h_on, h_off);
+    // A (robot dims × robot dims, nonzero on the scored positions' block
+    // only), in the order of the covariance columns: (i, j ≥ i).
+    let o = h_on.iter().filter(|n| n.starts_with("var_")).count();
+    let added: Vec<f64> = cal["added_covariance"].as_array().map_or_else(
+        || vec![0.0; o * o],
+        |a| a.iter().map(|v| v.as_f64().unwrap()).collect(),
+    );
+    assert_eq!(added.len(), o * o);
+    let upper: Vec<f64> = (0..o)
+        .flat_map(|i| (i..o).map(move |j| (i, j)))
+        .map(|(i, j)| added[i * o + j])
+        .collect();
     let mut checked = 0;
     for (a, b) in p_on.iter().zip(&p_off) {
+        let mut c = 0;
         for (k, name) in h_on.iter().enumerate() {
             if name.starts_with("var_") || name.starts_with("cov_") {
+                let want = (b[k] + upper[c]) * scale;
                 assert!(
-                    (a[k] - b[k] * scale).abs() <= 1e-9 * (b[k] * scale).abs().max(1e-12),
-                    "{name}: {} vs {} × {scale}",
+                    (a[k] - want).abs() <= 1e-9 * want.abs().max(1e-12),
+                    "{name}: {} vs ({} + {}) × {scale}",
                     a[k],
-                    b[k]
+                    b[k],
+                    upper[c]
                 );
+                c += 1;
                 checked += 1;
             } else if !a[k].is_nan() {
                 assert_eq!(a[k], b[k], "{name}: the mean must not move");

@@ -110,9 +110,19 @@ fn files_say_version_3_for_what_version_2_readers_do_not_know() {
     assert_eq!(j["version"], 3);
     assert_eq!(j["method"]["settings"]["reg_units"], "positions");
     assert_eq!(j["roles"]["velocities"].as_array().unwrap().len(), 6);
-    // auto calibrates by left-out demonstrations by default: version 3, by
-    // name; with calibrate=frames the flag of version 2, which older readers know.
-    let auto = fit("auto:grid=small,folds=3,halving=off", "auto.json");
+    // auto calibrates for a new demonstration by default: version 4, by
+    // name; by left-out demonstrations version 3, by name; with
+    // calibrate=frames the flag of version 2, which older readers know.
+    let predictive = model_json(&fit("auto:grid=small,folds=3,halving=off", "auto4.json"));
+    assert_eq!(predictive["version"], 4);
+    assert_eq!(
+        predictive["method"]["settings"]["calibration"],
+        "predictive"
+    );
+    let auto = fit(
+        "auto:grid=small,folds=3,halving=off,calibrate=demonstrations",
+        "auto.json",
+    );
     let j = model_json(&auto);
     assert_eq!(j["version"], 3);
     assert_eq!(j["method"]["settings"]["calibration"], "demonstrations");

@@ -334,6 +334,313 @@ pub fn demonstration_inflation(groups: &[&[f64]], level: f64) -> Result<f64> {
     Ok(order_statistic(&ratios, level).max(1.0))
 }
 
+/// How much to widen a calibration fitted on frames pooled over
+/// demonstrations so that a *new demonstration* is covered at `level` in
+/// expectation, with how hard a demonstration is modelled as a random effect
+/// (the `predictive` rule of `auto`; [`demonstration_inflation`] is the
+/// rule that takes the held-out demonstrations as they are).
+///
+/// With the held-out frames' squared Mahalanobis distances grouped by
+/// demonstration (`groups[d]`, `n ≥ 2` non-empty groups) and `Q_{−d}` the
+/// empirical `level` quantile of every other demonstration's distances:
+///
+/// * demonstration `d`'s *difficulty* `g_d = Q_level({m²_{d,t} / Q_{−d}}_t)`:
+///   the factor by which the threshold the others set must be multiplied for
+///   `level` of `d`'s own frames to fall below it;
+/// * its frames' *shape* `u_{d,t} = m²_{d,t} / (Q_{−d} g_d)`, pooled over
+///   the demonstrations into one distribution `H` (`H(1) ≈ level` for each);
+/// * the log-difficulties' mean `μ` and standard deviation `σ` (`n − 1` in
+///   the denominator); a new demonstration's log-difficulty is predicted as
+///   `N(μ, σ² (1 + 1/n))` (a new draw around a mean estimated from `n`);
+/// * the factor `f` solves `E_g[H(f / g)] = level`: against the threshold
+///   `Q` of all the frames (the others, for a new demonstration), the
+///   expected share of a new demonstration's frames inside is `level`.
+///
+/// The expectation is a fixed quadrature (`z` on 321 points of `[−8, 8]`,
+/// normal weights) and `f` a bisection on `ln f` to 1e-12: deterministic.
+/// The calibrated factor is then `f · c`, `c` from [`coverage_scale`] on all
+/// the frames. Unlike [`demonstration_inflation`], `f` may be below 1: the
+/// pooled factor can be too wide when most demonstrations are easier than
+/// the pooled frames make them look.
+///
+/// Why: demonstrations differ in how hard they are (an offset, a timing), and
+/// with a handful of them the hardest one seen is not the hardest to come. A
+/// rule that only replays the held-out demonstrations covers a new one less
+/// often the more they differ; this one widens by their spread and by the
+/// uncertainty of its mean.
+///
+/// Errors with fewer than two non-empty groups, a distance that is not
+/// finite and `≥ 0`, `level` outside `(0, 1)`, or a quantile of zero.
+pub fn new_demonstration_factor(groups: &[&[f64]], level: f64) -> Result<NewDemonstration> {
+    if !(level > 0.0 && level < 1.0) {
+        return Err(GmrError::InvalidDims(format!(
+            "coverage calibration: the level must lie in (0, 1), got {level}"
+        )));
+    }
+    let groups: Vec<(usize, &[f64])> = groups
+        .iter()
+        .copied()
+        .enumerate()
+        .filter(|(_, g)| !g.is_empty())
+        .collect();
+    let n = groups.len();
+    if n < 2 {
+        return Err(GmrError::InvalidDims(
+            "coverage calibration: a new demonstration's spread needs at least two demonstrations"
+                .into(),
+        ));
+    }
+    for (_, g) in &groups {
+        check_distances(g)?;
+    }
+    let mut log_difficulty = Vec::with_capacity(n);
+    let mut shape: Vec<f64> = Vec::with_capacity(groups.iter().map(|(_, g)| g.len()).sum());
+    for (d, (index, group)) in groups.iter().enumerate() {
+        let mut others: Vec<f64> = groups
+            .iter()
+            .enumerate()
+            .filter(|(e, _)| *e != d)
+            .flat_map(|(_, (_, g))| g.iter().copied())
+            .collect();
+        others.sort_by(f64::total_cmp);
+        let threshold = order_statistic(&others, level);
+        let mut own: Vec<f64> = group.iter().map(|v| v / threshold).collect();
+        own.sort_by(f64::total_cmp);
+        let difficulty = order_statistic(&own, level);
+        if !(threshold > 0.0 && difficulty > 0.0) {
+            return Err(GmrError::InvalidDims(format!(
+                "coverage calibration: demonstration {index} or the others have a quantile of zero"
+            )));
+        }
+        log_difficulty.push(difficulty.ln());
+        shape.extend(own.iter().map(|x| x / difficulty));
+    }
+    shape.sort_by(f64::total_cmp);
+    let nf = n as f64;
+    let mu = log_difficulty.iter().sum::<f64>() / nf;
+    let sigma = (log_difficulty.iter().map(|v| (v - mu).powi(2)).sum::<f64>() / (nf - 1.0)).sqrt();
+    let spread = sigma * (1.0 + 1.0 / nf).sqrt();
+    // Quadrature nodes of the new demonstration's log-difficulty.
+    const NODES: usize = 321;
+    let (mut nodes, mut weights) = (Vec::with_capacity(NODES), Vec::with_capacity(NODES));
+    for i in 0..NODES {
+        let z = -8.0 + 16.0 * i as f64 / (NODES - 1) as f64;
+        nodes.push(mu + spread * z);
+        weights.push((-0.5 * z * z).exp());
+    }
+    let total: f64 = weights.iter().sum();
+    weights.iter_mut().for_each(|w| *w /= total);
+    // E_g[H(f / g)] with H the shapes' empirical distribution function.
+    let expected = |ln_f: f64| -> f64 {
+        nodes
+            .iter()
+            .zip(&weights)
+            .map(|(ln_g, w)| {
+                let x = (ln_f - ln_g).exp();
+                w * shape.partition_point(|&u| u <= x) as f64
+            })
+            .sum::<f64>()
+            / shape.len() as f64
+    };
+    // Bracket: below every shape at the largest difficulty, above every shape
+    // at the smallest one.
+    let (lo_shape, hi_shape) = (shape[0].max(f64::MIN_POSITIVE), shape[shape.len() - 1]);
+    let mut lo = lo_shape.ln() + nodes[0] - 1.0;
+    let mut hi = hi_shape.ln() + nodes[NODES - 1] + 1.0;
+    while hi - lo > 1e-12 {
+        let mid = 0.5 * (lo + hi);
+        if expected(mid) < level {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    Ok(NewDemonstration {
+        factor: hi.exp(),
+        log_difficulty_mean: mu,
+        log_difficulty_sd: sigma,
+        demonstrations: n,
+    })
+}
+
+/// What [`new_demonstration_factor`] found.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NewDemonstration {
+    /// `f`: multiplies the pooled factor.
+    pub factor: f64,
+    /// `μ`: the mean log-difficulty of the held-out demonstrations.
+    pub log_difficulty_mean: f64,
+    /// `σ`: their standard deviation.
+    pub log_difficulty_sd: f64,
+    /// `n`: how many demonstrations had scored frames.
+    pub demonstrations: usize,
+}
+
+/// The shape a calibration gives the predictive covariance before scaling
+/// it: the model's covariance plus a share of the covariance of its
+/// held-out errors (the `predictive` rule of `auto`).
+///
+/// With held-out frames' residuals `r_t = y_t − μ_t` and predictive
+/// covariances `Σ_t` (`p` dims), the residuals' second moment
+/// `R = (1/n) Σ_t r_t r_tᵀ`, and `s = (1/n) Σ_t tr(R⁻¹ Σ_t) / p` (so that
+/// `s R` is as large as the average `Σ_t` measured by `R`: the same under any
+/// invertible change of the dims' units), the calibrated shape is
+///
+/// `Σ_t(w) = Σ_t + w s R`,
+///
+/// with `w` from the grid `0, 10^{−2}, 10^{−1.75}, …, 10²` chosen for the
+/// lowest held-out NLPD after the pooled scale [`coverage_scale`] of the
+/// same frames (the first on ties). `w = 0` is the model's own shape; a large
+/// `w` a constant covariance shaped like the errors.
+///
+/// Why: a model's covariance can have the wrong shape rather than the wrong
+/// size. A regulariser's isotropic `(10 cm)²` is the same in every direction
+/// while the errors are not; a scalar factor then has to choose between
+/// covering the long direction and being honest in the short one. The
+/// errors' own covariance, mixed in by held-out likelihood, fixes the shape;
+/// the scalar then fixes the size.
+///
+/// `residuals`: `n × p` row-major; `covariances`: `n × p × p`. `w = 0` and
+/// no added covariance when `R` is singular (a dim predicted without error).
+/// Errors with no frame, sizes that disagree, or a covariance that is not
+/// positive definite.
+pub fn residual_shape(
+    residuals: &[f64],
+    covariances: &[f64],
+    p: usize,
+    level: f64,
+) -> Result<ResidualShape> {
+    let n = residuals.len().checked_div(p).unwrap_or(0);
+    if n == 0 || residuals.len() != n * p || covariances.len() != n * p * p {
+        return Err(GmrError::InvalidDims(format!(
+            "residual shape: {} residual values and {} covariance values do not make frames of {p} dims",
+            residuals.len(),
+            covariances.len()
+        )));
+    }
+    let limit = chi_squared_quantile(level, p)?;
+    let mut second_moment = vec![0.0; p * p];
+    for r in residuals.chunks_exact(p) {
+        for i in 0..p {
+            for j in 0..p {
+                second_moment[i * p + j] += r[i] * r[j] / n as f64;
+            }
+        }
+    }
+    let mut scratch = vec![0.0; p * (p + 1)];
+    let mut mixed = vec![0.0; p * p];
+    // Scores every frame under Σ_t + a · R: the pooled-scale NLPD and the distances.
+    let mut score = |added: f64, m2: &mut Vec<f64>| -> Result<f64> {
+        m2.clear();
+        let mut log_density = 0.0;
+        for (r, cov) in residuals
+            .chunks_exact(p)
+            .zip(covariances.chunks_exact(p * p))
+        {
+            for ((m, c), a) in mixed.iter_mut().zip(cov).zip(&second_moment) {
+                *m = c + added * a;
+            }
+            let s = score_gaussian(r, &mixed, &mut scratch)?;
+            m2.push(s.mahalanobis2);
+            log_density += s.log_density;
+        }
+        let nlpd = -log_density / n as f64;
+        let mean_m2 = m2.iter().sum::<f64>() / n as f64;
+        let mut sorted = m2.clone();
+        sorted.sort_by(f64::total_cmp);
+        let c = order_statistic(&sorted, level) / limit;
+        Ok(if c > 0.0 {
+            nlpd_scaled(nlpd, mean_m2, p, c)
+        } else {
+            f64::INFINITY
+        })
+    };
+    let mut m2 = Vec::with_capacity(n);
+    let own_nlpd = score(0.0, &mut m2)?;
+    // s = mean tr(R⁻¹ Σ_t) / p, by R⁻¹'s columns from a Cholesky solve; a
+    // singular R leaves the model's shape.
+    let Some(inverse) = inverse_spd(&second_moment, p) else {
+        return Ok(ResidualShape {
+            weight: 0.0,
+            added: vec![0.0; p * p],
+            nlpd: own_nlpd,
+            model_nlpd: own_nlpd,
+        });
+    };
+    let size = covariances
+        .chunks_exact(p * p)
+        .map(|c| (0..p * p).map(|k| inverse[k] * c[k]).sum::<f64>())
+        .sum::<f64>()
+        / (n * p) as f64;
+    let (mut best_weight, mut best_nlpd) = (0.0, own_nlpd);
+    for k in -8..=8 {
+        let w = 10f64.powf(k as f64 / 4.0);
+        let nlpd = score(w * size, &mut m2)?;
+        if nlpd < best_nlpd {
+            (best_weight, best_nlpd) = (w, nlpd);
+        }
+    }
+    Ok(ResidualShape {
+        weight: best_weight,
+        added: second_moment
+            .iter()
+            .map(|a| best_weight * size * a)
+            .collect(),
+        nlpd: best_nlpd,
+        model_nlpd: own_nlpd,
+    })
+}
+
+/// What [`residual_shape`] chose.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ResidualShape {
+    /// `w`: the share of the held-out errors' covariance mixed in.
+    pub weight: f64,
+    /// `w s R`, `p × p` row-major: what is added to every `Σ_t`.
+    pub added: Vec<f64>,
+    /// The held-out NLPD with it, after the pooled scale (nats).
+    pub nlpd: f64,
+    /// The held-out NLPD of the model's own shape, after the pooled scale.
+    pub model_nlpd: f64,
+}
+
+/// The inverse of a symmetric positive definite `p × p` matrix (row-major),
+/// by Cholesky; `None` when it is not positive definite.
+fn inverse_spd(a: &[f64], p: usize) -> Option<Vec<f64>> {
+    let mut l = vec![0.0; p * p];
+    for i in 0..p {
+        for j in 0..=i {
+            let s = a[i * p + j] - (0..j).map(|k| l[i * p + k] * l[j * p + k]).sum::<f64>();
+            if i == j {
+                if !(s > 0.0 && s.is_finite()) {
+                    return None;
+                }
+                l[i * p + i] = s.sqrt();
+            } else {
+                l[i * p + j] = s / l[j * p + j];
+            }
+        }
+    }
+    let mut inverse = vec![0.0; p * p];
+    let mut column = vec![0.0; p];
+    for e in 0..p {
+        // L y = e_e, then Lᵀ x = y.
+        for i in 0..p {
+            let s =
+                f64::from(u8::from(i == e)) - (0..i).map(|k| l[i * p + k] * column[k]).sum::<f64>();
+            column[i] = s / l[i * p + i];
+        }
+        for i in (0..p).rev() {
+            let s = column[i] - (i + 1..p).map(|k| l[k * p + i] * column[k]).sum::<f64>();
+            column[i] = s / l[i * p + i];
+        }
+        for i in 0..p {
+            inverse[i * p + e] = column[i];
+        }
+    }
+    Some(inverse)
+}
+
 /// The mean negative log predictive density after multiplying the covariance
 /// by `c`, from the unscaled one: with `p` dims and the mean `m̄²` of the
 /// frames' squared Mahalanobis distances,

@@ -73,7 +73,8 @@ pub mod regression;
 
 pub use calibration::{
     chi_squared_cdf, chi_squared_quantile, covariance_block, coverage_scale,
-    demonstration_inflation, nlpd_scaled, score_gaussian, GaussianScore, COVERAGE_LEVEL,
+    demonstration_inflation, new_demonstration_factor, nlpd_scaled, residual_shape, score_gaussian,
+    GaussianScore, NewDemonstration, ResidualShape, COVERAGE_LEVEL,
 };
 pub use conditional::{check_io, Conditional};
 pub use error::{GmrError, Result};

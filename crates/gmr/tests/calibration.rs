@@ -361,3 +361,296 @@ fn demonstration_inflation_refuses_what_it_cannot_calibrate() {
     assert!(phasekit_gmr::demonstration_inflation(&[&a[..], &a[..]], 1.0).is_err());
     assert!(phasekit_gmr::demonstration_inflation(&[&[0.0; 4][..], &a[..]], 0.95).is_err());
 }
+
+/// The `predictive` factor's definition, computed the slow obvious way:
+/// every demonstration's difficulty and shapes by sorting, the log-difficulty
+/// spread, and the expected coverage of a new demonstration by a fine
+/// Riemann sum over the normal density (20,001 points on ±10 sd), at `f`.
+fn expected_new_coverage(groups: &[Vec<f64>], level: f64, f: f64) -> f64 {
+    let quantile = |mut v: Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        let k = ((level * v.len() as f64).ceil() as usize).clamp(1, v.len());
+        v[k - 1]
+    };
+    let n = groups.len() as f64;
+    let (mut logs, mut shapes) = (Vec::new(), Vec::new());
+    for d in 0..groups.len() {
+        let others: Vec<f64> = groups
+            .iter()
+            .enumerate()
+            .filter(|(e, _)| *e != d)
+            .flat_map(|(_, g)| g.clone())
+            .collect();
+        let q = quantile(others);
+        let g = quantile(groups[d].iter().map(|v| v / q).collect());
+        logs.push(g.ln());
+        shapes.extend(groups[d].iter().map(|v| v / q / g));
+    }
+    let mu = logs.iter().sum::<f64>() / n;
+    let sd = (logs.iter().map(|v| (v - mu).powi(2)).sum::<f64>() / (n - 1.0)).sqrt()
+        * (1.0 + 1.0 / n).sqrt();
+    let (mut total, mut weight) = (0.0, 0.0);
+    for i in 0..=20_000 {
+        let z = -10.0 + 20.0 * i as f64 / 20_000.0;
+        let w = (-0.5 * z * z).exp();
+        let g = (mu + sd * z).exp();
+        let inside = shapes.iter().filter(|&&u| u <= f / g).count() as f64 / shapes.len() as f64;
+        total += w * inside;
+        weight += w;
+    }
+    total / weight
+}
+
+#[test]
+fn the_new_demonstration_factor_is_the_smallest_with_the_expected_coverage() {
+    // Groups of unequal sizes and scales, against the definition: at the
+    // factor returned the expected coverage of a new demonstration reaches
+    // the level, a hair below it it does not (up to the two quadratures'
+    // difference, 2e-3).
+    let mut rng = ChaCha8Rng::seed_from_u64(8);
+    for case in 0..24 {
+        let groups: Vec<Vec<f64>> = (0..2 + case % 6)
+            .map(|d| {
+                let scale = if d == 0 {
+                    1.0 + case as f64 / 3.0
+                } else {
+                    1.0 + 0.1 * d as f64
+                };
+                scaled_chi_squared(&mut rng, scale, 1 + case % 3, 20 + (7 * d + case) % 60)
+            })
+            .collect();
+        let refs: Vec<&[f64]> = groups.iter().map(Vec::as_slice).collect();
+        let got = phasekit_gmr::new_demonstration_factor(&refs, 0.95).unwrap();
+        assert_eq!(got.demonstrations, groups.len());
+        let at = expected_new_coverage(&groups, 0.95, got.factor);
+        let below = expected_new_coverage(&groups, 0.95, got.factor * 0.98);
+        assert!(at >= 0.95 - 2e-3, "case {case}: {at} at {got:?}");
+        assert!(below < 0.95 + 2e-3, "case {case}: {below} below {got:?}");
+    }
+}
+
+#[test]
+fn demonstrations_that_agree_leave_the_pooled_factor() {
+    // Every demonstration the same distances: every difficulty is 1, no
+    // spread, and the pooled factor is right (f = 1).
+    let one: Vec<f64> = (1..=100).map(f64::from).collect();
+    let groups = [&one[..], &one[..], &one[..], &one[..]];
+    let f = phasekit_gmr::new_demonstration_factor(&groups, 0.95).unwrap();
+    assert!((f.factor - 1.0).abs() < 1e-9, "{f:?}");
+    assert_eq!(f.log_difficulty_sd, 0.0);
+}
+
+#[test]
+fn the_new_demonstration_factor_covers_new_demonstrations_at_the_level_monte_carlo() {
+    // The Monte Carlo of `demonstration_inflation`'s test (demonstrations
+    // with their own error scale, log-normal σ; 7 to calibrate on, 3 new
+    // ones, 400 times): where the left-out rule stays below 95 % with
+    // demonstrations unlike one another (σ = 1: 94.7 % there), this one
+    // reaches it (96.1 % here; asserted 95.0–96.5 %); with agreeing ones
+    // (σ = 0) both are at 95 %.
+    let mut rng = ChaCha8Rng::seed_from_u64(2027);
+    let limit = chi_squared_quantile(0.95, 3).unwrap();
+    for (sigma, range) in [(1.0, (0.95, 0.965)), (0.0, (0.94, 0.96))] {
+        let mut covered = 0.0;
+        let reps = 400;
+        for _ in 0..reps {
+            let demonstration = |rng: &mut ChaCha8Rng| {
+                let z: f64 = StandardNormal.sample(rng);
+                scaled_chi_squared(rng, (sigma * z).exp(), 3, 100)
+            };
+            let train: Vec<Vec<f64>> = (0..7).map(|_| demonstration(&mut rng)).collect();
+            let all: Vec<f64> = train.iter().flatten().copied().collect();
+            let c = phasekit_gmr::coverage_scale(&all, 3, 0.95).unwrap();
+            let refs: Vec<&[f64]> = train.iter().map(Vec::as_slice).collect();
+            let f = phasekit_gmr::new_demonstration_factor(&refs, 0.95)
+                .unwrap()
+                .factor;
+            let new: Vec<f64> = (0..3).flat_map(|_| demonstration(&mut rng)).collect();
+            covered +=
+                new.iter().filter(|&&v| v / (c * f) <= limit).count() as f64 / 300.0 / reps as f64;
+        }
+        assert!(
+            covered > range.0 && covered < range.1,
+            "σ = {sigma}: {covered}"
+        );
+    }
+}
+
+#[test]
+fn the_new_demonstration_factor_refuses_what_it_cannot_calibrate() {
+    use phasekit_gmr::new_demonstration_factor as f;
+    let a = [1.0, 2.0, 3.0];
+    assert!(f(&[&a[..]], 0.95).is_err());
+    assert!(f(&[&a[..], &[][..]], 0.95).is_err());
+    assert!(f(&[&a[..], &[f64::NAN][..]], 0.95).is_err());
+    assert!(f(&[&a[..], &[-1.0][..]], 0.95).is_err());
+    assert!(f(&[&a[..], &a[..]], 1.0).is_err());
+    assert!(f(&[&[0.0; 4][..], &a[..]], 0.95).is_err());
+}
+
+/// Frames whose errors are `N(0, E)` for a fixed `E` (`p = 3`), predicted
+/// with per-frame covariances `Σ_t = (1 + t mod 3) · base`: residuals and
+/// covariances, row-major.
+fn frames_with(
+    rng: &mut ChaCha8Rng,
+    error_sd: [f64; 3],
+    base: [f64; 9],
+    n: usize,
+) -> (Vec<f64>, Vec<f64>) {
+    let (mut residuals, mut covariances) = (Vec::new(), Vec::new());
+    for t in 0..n {
+        for sd in error_sd {
+            let z: f64 = StandardNormal.sample(rng);
+            residuals.push(sd * z);
+        }
+        covariances.extend(base.iter().map(|v| v * (1 + t % 3) as f64));
+    }
+    (residuals, covariances)
+}
+
+/// The pooled-scale NLPD of `Σ_t + added`, scored frame by frame.
+fn nlpd_with(residuals: &[f64], covariances: &[f64], added: &[f64], p: usize) -> f64 {
+    let limit = chi_squared_quantile(0.95, p).unwrap();
+    let mut scratch = vec![0.0; p * (p + 1)];
+    let mixed = |c: &[f64]| -> Vec<f64> { c.iter().zip(added).map(|(a, b)| a + b).collect() };
+    let mut m2: Vec<f64> = residuals
+        .chunks(p)
+        .zip(covariances.chunks(p * p))
+        .map(|(r, c)| {
+            score_gaussian(r, &mixed(c), &mut scratch)
+                .unwrap()
+                .mahalanobis2
+        })
+        .collect();
+    m2.sort_by(f64::total_cmp);
+    let k = ((0.95 * m2.len() as f64).ceil() as usize).clamp(1, m2.len());
+    let scale = m2[k - 1] / limit;
+    let n = residuals.len() / p;
+    -residuals
+        .chunks(p)
+        .zip(covariances.chunks(p * p))
+        .map(|(r, c)| {
+            let scaled: Vec<f64> = mixed(c).iter().map(|v| v * scale).collect();
+            score_gaussian(r, &scaled, &mut scratch)
+                .unwrap()
+                .log_density
+        })
+        .sum::<f64>()
+        / n as f64
+}
+
+#[test]
+fn the_residual_shape_fixes_an_isotropic_covariance_against_anisotropic_errors() {
+    // The model says the same in every direction (a regulariser's bands);
+    // the errors are 30 times larger along x than along z. Mixing in the
+    // errors' covariance lowers the held-out NLPD by more than a nat, and
+    // the NLPD reported is the one scored frame by frame.
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    let identity = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
+    let (r, c) = frames_with(&mut rng, [3.0, 1.0, 0.1], identity, 600);
+    let s = phasekit_gmr::residual_shape(&r, &c, 3, 0.95).unwrap();
+    assert!(s.weight >= 1.0, "{s:?}");
+    assert!(s.nlpd < s.model_nlpd - 1.0, "{s:?}");
+    assert!(
+        (s.nlpd - nlpd_with(&r, &c, &s.added, 3)).abs() < 1e-10,
+        "{s:?}"
+    );
+    assert!((s.model_nlpd - nlpd_with(&r, &c, &[0.0; 9], 3)).abs() < 1e-10);
+    // No weight of the grid does better (the choice is the grid's best).
+    for k in -8..=8 {
+        let w = 10f64.powf(k as f64 / 4.0);
+        let added: Vec<f64> = s.added.iter().map(|a| a * w / s.weight).collect();
+        assert!(nlpd_with(&r, &c, &added, 3) >= s.nlpd - 1e-12, "w = {w}");
+    }
+}
+
+#[test]
+fn the_residual_shape_keeps_a_covariance_that_is_right() {
+    // Errors drawn from the predicted covariances themselves: nothing to
+    // fix, the weight stays small and the NLPD gain is noise.
+    let mut rng = ChaCha8Rng::seed_from_u64(4);
+    let n = 900;
+    let base = [4.0, 1.0, 0.0, 1.0, 2.0, 0.5, 0.0, 0.5, 1.0];
+    let (_, c) = frames_with(&mut rng, [0.0; 3], base, n);
+    // r_t = L_t z with L_t the Cholesky factor of Σ_t (3 × 3 by hand).
+    let mut r = Vec::with_capacity(3 * n);
+    for t in 0..n {
+        let s = &c[9 * t..9 * t + 9];
+        let l00 = s[0].sqrt();
+        let l10 = s[3] / l00;
+        let l11 = (s[4] - l10 * l10).sqrt();
+        let l20 = s[6] / l00;
+        let l21 = (s[7] - l20 * l10) / l11;
+        let l22 = (s[8] - l20 * l20 - l21 * l21).sqrt();
+        let z: [f64; 3] = std::array::from_fn(|_| StandardNormal.sample(&mut rng));
+        r.extend([
+            l00 * z[0],
+            l10 * z[0] + l11 * z[1],
+            l20 * z[0] + l21 * z[1] + l22 * z[2],
+        ]);
+    }
+    let s = phasekit_gmr::residual_shape(&r, &c, 3, 0.95).unwrap();
+    assert!(s.weight <= 0.1, "{s:?}");
+    assert!(s.model_nlpd - s.nlpd < 0.02, "{s:?}");
+}
+
+#[test]
+fn the_residual_shape_does_not_depend_on_the_units() {
+    // y ↦ A y (units and a rotation): residuals A r, covariances A Σ Aᵀ. The
+    // same weight is chosen and the added covariance is A (w s R) Aᵀ.
+    let mut rng = ChaCha8Rng::seed_from_u64(6);
+    let identity = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
+    let (r, c) = frames_with(&mut rng, [2.0, 1.0, 0.3], identity, 400);
+    let a = [100.0, 0.0, 0.0, 0.6, 0.8, 0.0, 0.0, 0.0, 0.001];
+    let mat = |x: &[f64], y: &[f64]| -> Vec<f64> {
+        (0..9)
+            .map(|k| (0..3).map(|m| x[(k / 3) * 3 + m] * y[m * 3 + k % 3]).sum())
+            .collect()
+    };
+    let at: Vec<f64> = (0..9).map(|k| a[(k % 3) * 3 + k / 3]).collect();
+    let r2: Vec<f64> = r
+        .chunks(3)
+        .flat_map(|v| {
+            (0..3)
+                .map(|i| (0..3).map(|m| a[i * 3 + m] * v[m]).sum::<f64>())
+                .collect::<Vec<_>>()
+        })
+        .collect();
+    let c2: Vec<f64> = c.chunks(9).flat_map(|s| mat(&mat(&a, s), &at)).collect();
+    let s1 = phasekit_gmr::residual_shape(&r, &c, 3, 0.95).unwrap();
+    let s2 = phasekit_gmr::residual_shape(&r2, &c2, 3, 0.95).unwrap();
+    assert_eq!(s1.weight, s2.weight);
+    assert!(s1.weight > 0.0);
+    let want = mat(&mat(&a, &s1.added), &at);
+    for (x, y) in s2.added.iter().zip(&want) {
+        assert!((x - y).abs() <= 1e-9 * (1.0 + y.abs()) * 1e4, "{x} vs {y}");
+    }
+    // The NLPD moves by the log-Jacobian only: log |det A| = log(100 · 0.8 · 0.001).
+    let jacobian = (100.0f64 * 0.8 * 0.001).ln();
+    assert!(
+        (s2.nlpd - (s1.nlpd + jacobian)).abs() < 1e-9,
+        "{} {}",
+        s1.nlpd,
+        s2.nlpd
+    );
+}
+
+#[test]
+fn the_residual_shape_keeps_the_model_when_an_error_never_varies() {
+    // A dim predicted without error: R is singular, nothing is mixed in.
+    let r: Vec<f64> = (0..30).flat_map(|t| [t as f64 % 5.0 - 2.0, 0.0]).collect();
+    let c: Vec<f64> = (0..30).flat_map(|_| [1.0, 0.0, 0.0, 1.0]).collect();
+    let s = phasekit_gmr::residual_shape(&r, &c, 2, 0.95).unwrap();
+    assert_eq!(s.weight, 0.0);
+    assert_eq!(s.added, vec![0.0; 4]);
+    assert_eq!(s.nlpd, s.model_nlpd);
+}
+
+#[test]
+fn the_residual_shape_refuses_what_it_cannot_shape() {
+    use phasekit_gmr::residual_shape as f;
+    assert!(f(&[], &[], 2, 0.95).is_err());
+    assert!(f(&[1.0, 2.0], &[1.0, 0.0, 0.0], 2, 0.95).is_err());
+    assert!(f(&[1.0, 2.0, 3.0], &[1.0; 4], 2, 0.95).is_err());
+    assert!(f(&[1.0, 2.0], &[1.0, 0.0, 0.0, -1.0], 2, 0.95).is_err());
+}

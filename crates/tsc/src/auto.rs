@@ -41,7 +41,7 @@
 use crate::cross_validation::Halving;
 use crate::emission_choice::EmissionKind;
 use crate::error::{Result, TscError};
-use crate::method::{Calibration, CrossValidation, Method};
+use crate::method::{Calibration, CrossValidation, Method, Selection};
 use crate::preset::{Preset, PresetOptions, PresetOptionsBuilder};
 use crate::reg_units::RegUnits;
 use serde::{Deserialize, Serialize};
@@ -232,12 +232,16 @@ pub struct AutoSettings {
     folds: usize,
     families: Option<Vec<String>>,
     halving: bool,
-    /// Settings written before calibration existed read as the default rule:
-    /// their model files carry no calibration, so they predict as they did;
-    /// those written when it was a flag read `true` as the rule of the time,
-    /// [`Calibration::Frames`].
+    /// Settings written before calibration existed read as
+    /// [`Calibration::Demonstrations`] (the default rule when the field
+    /// became a name): their model files carry no calibration, so they
+    /// predict as they did; those written when it was a flag read `true` as
+    /// the rule of the time, [`Calibration::Frames`].
     #[serde(default = "default_calibration")]
     calibrate: Calibration,
+    /// How the winner is chosen (not written when [`Selection::Best`]).
+    #[serde(default, skip_serializing_if = "Selection::is_best")]
+    select: Selection,
 }
 
 fn default_calibration() -> Calibration {
@@ -245,15 +249,16 @@ fn default_calibration() -> Calibration {
 }
 
 impl Default for AutoSettings {
-    /// The default grid, 5 folds, every family, halving on, calibration by
-    /// left-out demonstrations.
+    /// The default grid, 5 folds, every family, halving on, calibration for
+    /// a new demonstration ([`Calibration::Predictive`]).
     fn default() -> Self {
         AutoSettings {
             grid: Grid::Default,
             folds: 5,
             families: None,
             halving: true,
-            calibrate: Calibration::Demonstrations,
+            calibrate: Calibration::Predictive,
+            select: Selection::Best,
         }
     }
 }
@@ -284,9 +289,14 @@ impl AutoSettingsBuilder {
         self
     }
     /// How the winner's predictive covariance is calibrated on the folds
-    /// ([`Calibration::Demonstrations`] by default).
+    /// ([`Calibration::Predictive`] by default).
     pub fn calibrate(mut self, rule: Calibration) -> Self {
         self.0.calibrate = rule;
+        self
+    }
+    /// How the winner is chosen ([`Selection::Best`] by default).
+    pub fn select(mut self, rule: Selection) -> Self {
+        self.0.select = rule;
         self
     }
     /// Validates the settings: at least 2 folds, every family one of the grid's.
@@ -364,11 +374,18 @@ impl AutoSettings {
     pub fn calibration(&self) -> Calibration {
         self.calibrate
     }
+    /// How the winner is chosen.
+    pub fn selection(&self) -> Selection {
+        self.select
+    }
 
     /// Whether `key` is one of `auto`'s own keys (`grid`, `folds`, `families`,
     /// `halving`, `calibrate`).
     pub fn is_key(key: &str) -> bool {
-        matches!(key, "grid" | "folds" | "families" | "halving" | "calibrate")
+        matches!(
+            key,
+            "grid" | "folds" | "families" | "halving" | "calibrate" | "select"
+        )
     }
 
     /// Sets one `auto:key=value` setting on a builder; errors name the key.
@@ -387,15 +404,26 @@ impl AutoSettings {
                 "off" => b.halving(false),
                 _ => return Err(bad("halving", format!("expected on or off, got `{value}`"))),
             },
+            "select" => match value {
+                "best" => b.select(Selection::Best),
+                "one-se" => b.select(Selection::OneStandardError),
+                _ => {
+                    return Err(bad(
+                        "select",
+                        format!("expected best or one-se, got `{value}`"),
+                    ))
+                }
+            },
             "calibrate" => match value {
-                "on" | "demonstrations" => b.calibrate(Calibration::Demonstrations),
+                "on" | "predictive" => b.calibrate(Calibration::Predictive),
+                "demonstrations" => b.calibrate(Calibration::Demonstrations),
                 "frames" => b.calibrate(Calibration::Frames),
                 "off" => b.calibrate(Calibration::Off),
                 _ => {
                     return Err(bad(
                         "calibrate",
                         format!(
-                            "expected on (= demonstrations), demonstrations, frames or off, got `{value}`"
+                            "expected on (= predictive), predictive, demonstrations, frames or off, got `{value}`"
                         ),
                     ))
                 }
@@ -436,7 +464,8 @@ impl AutoSettings {
     pub fn method(&self, base: &PresetOptions) -> Result<Method> {
         let cv = CrossValidation::new(self.candidates(base)?, self.folds)?
             .with_fold_seed(base.seed())
-            .with_calibration(self.calibrate);
+            .with_calibration(self.calibrate)
+            .with_selection(self.select);
         Ok(Method::CrossValidated(if self.halving {
             cv.with_halving(Halving::default())
         } else {

@@ -23,8 +23,19 @@
 //! fitted on the others alone, is covered at 95 % over all
 //! ([`phasekit_gmr::demonstration_inflation`]), since a new demonstration is
 //! what the calibration must transfer to and its frames' errors are not
-//! independent. A regulariser's `(10 cm)²` bands shrink, over-confident ones
-//! widen, the mean is unchanged, and no test frame is used.
+//! independent; with [`Calibration::Predictive`] (`auto`'s default) the
+//! covariance first takes a share of the held-out errors' own covariance,
+//! chosen by held-out likelihood ([`phasekit_gmr::residual_shape`]), and the
+//! pooled factor is then multiplied by the one that covers a new
+//! demonstration at 95 % in expectation when demonstrations differ in how
+//! hard they are as much as the held-out ones do
+//! ([`phasekit_gmr::new_demonstration_factor`]). A regulariser's `(10 cm)²`
+//! bands shrink, over-confident ones widen, the mean is unchanged, and no
+//! test frame is used.
+//!
+//! **Choice.** The lowest cross-validated error wins ([`Selection::Best`]),
+//! or, with [`Selection::OneStandardError`], the most regularised candidate
+//! within one standard error of it ([`winner_by`]).
 //!
 //! **Folds.** Demonstration `k` is held out by fold `k mod K`, or, with a fold
 //! seed, the demonstrations are first shuffled by `ChaCha8Rng::seed_from_u64(seed)`
@@ -47,15 +58,15 @@
 
 use crate::detect::select;
 use crate::error::{Result, TscError};
-use crate::method::{Calibration, CrossValidation, Method};
+use crate::method::{Calibration, CrossValidation, Method, Selection};
 use crate::model::Model;
 use crate::roles::Roles;
 use crate::summary::{CovarianceCalibration, FitSummary};
 use phasekit_emission::{Frames, SequenceSet};
 pub use phasekit_gmr::COVERAGE_LEVEL;
 use phasekit_gmr::{
-    chi_squared_quantile, covariance_block, coverage_scale, demonstration_inflation, nlpd_scaled,
-    score_gaussian,
+    chi_squared_quantile, covariance_block, coverage_scale, new_demonstration_factor, nlpd_scaled,
+    residual_shape, score_gaussian,
 };
 use rand::seq::SliceRandom;
 use rand::SeedableRng;
@@ -265,11 +276,21 @@ struct FoldOutcome {
     frames: usize,
     /// Seconds of fitting and predicting.
     seconds: f64,
-    /// Per held-out demonstration, per scorable frame, `m²` of its scored
-    /// dims under the predictive covariance; and the sum of their log
-    /// densities. `None` when a covariance could not be scored (calibration is
-    /// best effort: the error still counts).
-    calibration: Option<(Vec<Vec<f64>>, f64)>,
+    /// Per held-out demonstration, its scorable frames' scores; and the sum
+    /// of their log densities. `None` when a covariance could not be scored
+    /// (calibration is best effort: the error still counts).
+    calibration: Option<(Vec<HeldOut>, f64)>,
+}
+
+/// The scorable frames of one held-out demonstration, scored dims only.
+#[derive(Debug, Clone, Default)]
+struct HeldOut {
+    /// Per frame, `m²` under the predictive covariance.
+    mahalanobis2: Vec<f64>,
+    /// Per frame, `y − μ` (`p` values).
+    residuals: Vec<f64>,
+    /// Per frame, the predictive covariance (`p × p`).
+    covariances: Vec<f64>,
 }
 
 type FoldScore = Result<FoldOutcome>;
@@ -308,8 +329,8 @@ fn score_fold(
         (vec![0.0; p], vec![0.0; p * p], vec![0.0; p * (p + 1)]);
     let mut calibration = Some((Vec::new(), 0.0));
     for &k in &held {
-        if let Some((m2, _)) = calibration.as_mut() {
-            m2.push(Vec::new());
+        if let Some((held_out, _)) = calibration.as_mut() {
+            held_out.push(HeldOut::default());
         }
         let seq = data.get(k);
         let human = select(seq, roles.human());
@@ -326,14 +347,16 @@ fn score_fold(
             }
             se += residual.iter().map(|v| v * v).sum::<f64>();
             frames += 1;
-            if let (Some((m2, log_density)), Some(cov)) =
+            if let (Some((held_out, log_density)), Some(cov)) =
                 (calibration.as_mut(), pred.covariance.as_deref())
             {
                 covariance_block(&cov[t * o * o..(t + 1) * o * o], o, &outputs, &mut block);
                 match score_gaussian(&residual, &block, &mut scratch) {
                     Ok(s) => {
-                        if let Some(demonstration) = m2.last_mut() {
-                            demonstration.push(s.mahalanobis2);
+                        if let Some(demonstration) = held_out.last_mut() {
+                            demonstration.mahalanobis2.push(s.mahalanobis2);
+                            demonstration.residuals.extend_from_slice(&residual);
+                            demonstration.covariances.extend_from_slice(&block);
                         }
                         *log_density += s.log_density;
                     }
@@ -433,16 +456,22 @@ fn score_candidates(
                 .map(|x| x.calibration.as_ref())
                 .collect::<Option<Vec<_>>>()
                 .map(|parts| {
-                    let groups: Vec<Vec<f64>> =
-                        parts.iter().flat_map(|(m, _)| m.iter().cloned()).collect();
+                    let groups: Vec<HeldOut> =
+                        parts.iter().flat_map(|(h, _)| h.iter().cloned()).collect();
                     let log_density: f64 = parts.iter().map(|(_, l)| l).sum();
                     (groups, log_density)
                 })
-                .filter(|(groups, _)| groups.iter().any(|g| !g.is_empty()) && fail.is_none());
+                .filter(|(groups, _)| {
+                    groups.iter().any(|g| !g.mahalanobis2.is_empty()) && fail.is_none()
+                });
             let (coverage, nlpd) = match (&pooled_calibration, &limit) {
                 (Some((groups, log_density)), Ok(limit)) => {
-                    let n: usize = groups.iter().map(Vec::len).sum();
-                    let inside = groups.iter().flatten().filter(|&&v| v <= *limit).count();
+                    let n: usize = groups.iter().map(|g| g.mahalanobis2.len()).sum();
+                    let inside = groups
+                        .iter()
+                        .flat_map(|g| &g.mahalanobis2)
+                        .filter(|&&v| v <= *limit)
+                        .count();
                     (
                         Some(inside as f64 / n as f64),
                         Some(-log_density / n as f64),
@@ -463,19 +492,18 @@ fn score_candidates(
                     failure: fail.as_ref().map(|e| e.to_string()),
                 },
                 scored: Scored { mse, failure: fail },
-                mahalanobis2: pooled_calibration.map(|(m2, _)| m2),
+                held_out: pooled_calibration.map(|(groups, _)| groups),
             }
         })
         .collect()
 }
 
-/// A row, its error kept as a [`TscError`], and the squared Mahalanobis
-/// distances of its held-out frames grouped by demonstration (when every fold
-/// scored could be).
+/// A row, its error kept as a [`TscError`], and the scores of its held-out
+/// frames grouped by demonstration (when every fold scored could be).
 struct CvRowScored {
     row: CvRow,
     scored: Scored,
-    mahalanobis2: Option<Vec<Vec<f64>>>,
+    held_out: Option<Vec<HeldOut>>,
 }
 
 /// Pooled squared error per frame of the folds scored (NaN when no frame was).
@@ -518,60 +546,190 @@ pub fn winner(table: &[CvRow]) -> Option<usize> {
         .map(|(i, _)| i)
 }
 
+/// The winner of a table by `rule`: [`winner`] for [`Selection::Best`]; for
+/// [`Selection::OneStandardError`], among the candidates eligible for
+/// [`winner`] whose error is at most the lowest plus its standard error
+/// (`sd / √(K − 1)`, `sd` the spread of its per-fold errors over the `K`
+/// folds scored, population form: the sample standard deviation over `√K`),
+/// the one with the largest regularisation amount (`reg`, in the candidates'
+/// units), then the fewest states or components, then the earlier.
+pub fn winner_by(
+    table: &[CvRow],
+    candidates: &[(String, Method)],
+    rule: Selection,
+) -> Option<usize> {
+    let best = winner(table)?;
+    if rule == Selection::Best {
+        return Some(best);
+    }
+    let b = &table[best];
+    let k = b.folds_scored as f64;
+    let se = if k > 1.0 {
+        b.mse_sd / (k - 1.0).sqrt()
+    } else {
+        0.0
+    };
+    let limit = b.mse + se;
+    let strength = |c: usize| {
+        let m = &candidates[c].1;
+        (m.regularisation().map_or(0.0, |(r, _, _)| r), states_of(m))
+    };
+    table
+        .iter()
+        .enumerate()
+        .filter(|(_, r)| {
+            r.failure.is_none()
+                && !r.abandoned
+                && r.mse.is_finite()
+                && r.folds_scored == b.folds_scored
+                && r.mse <= limit
+        })
+        .map(|(i, _)| i)
+        .min_by(|&x, &y| {
+            let ((rx, sx), (ry, sy)) = (strength(x), strength(y));
+            ry.total_cmp(&rx).then(sx.cmp(&sy)).then(x.cmp(&y))
+        })
+}
+
+/// The number of states (or mixture components) a method fits.
+fn states_of(m: &Method) -> usize {
+    match m {
+        Method::Hmm(s) => s.states(),
+        Method::Hsmm(s) => s.hmm().states(),
+        Method::TscHmm(s) => s.base().states(),
+        Method::Gmm(s) | Method::GmmTsc { gmm: s, .. } => s.components(),
+        Method::CrossValidated(_) => 0,
+    }
+}
+
 /// The calibration of the winner's predictive covariance from its held-out
-/// frames' squared Mahalanobis distances, grouped by demonstration, by `rule`
-/// (see the module's docs); `None` when they could not all be scored (the
-/// winner then predicts uncalibrated, as it would without calibration; its
-/// row's coverage is `None` too) or the rule is [`Calibration::Off`].
-/// A note for the summary's warnings is pushed on `warnings` when the rule
-/// could not be applied as asked.
+/// frames, grouped by demonstration, by `rule` (see the module's docs);
+/// `None` when they could not all be scored (the winner then predicts
+/// uncalibrated, as it would without calibration; its row's coverage is
+/// `None` too) or the rule is [`Calibration::Off`]. A note for the summary's
+/// warnings is pushed on `warnings` when the rule could not be applied as
+/// asked.
 fn calibrate(
     rule: Calibration,
     row: &CvRow,
-    mahalanobis2: Option<&[Vec<f64>]>,
+    held_out: Option<&[HeldOut]>,
     roles: &Roles,
     warnings: &mut Vec<String>,
 ) -> Result<Option<CovarianceCalibration>> {
-    let (Some(groups), Some(coverage), Some(nlpd)) = (mahalanobis2, row.coverage, row.nlpd) else {
+    let (Some(groups), Some(coverage), Some(nlpd)) = (held_out, row.coverage, row.nlpd) else {
         return Ok(None);
     };
-    let m2: Vec<f64> = groups.iter().flatten().copied().collect();
-    let demonstration_inflation = match rule {
-        Calibration::Off => return Ok(None),
-        Calibration::Frames => 1.0,
+    if rule == Calibration::Off {
+        return Ok(None);
+    }
+    let p = roles.scored().len();
+    let limit = chi_squared_quantile(COVERAGE_LEVEL, p)?;
+    // The shape: the model's covariance, or (predictive) plus a share of the
+    // held-out errors' covariance; the frames' distances and mean log
+    // density under it.
+    let (added, residual_weight, distances, shaped_nlpd) = if rule == Calibration::Predictive {
+        let residuals: Vec<f64> = groups
+            .iter()
+            .flat_map(|g| g.residuals.iter().copied())
+            .collect();
+        let covariances: Vec<f64> = groups
+            .iter()
+            .flat_map(|g| g.covariances.iter().copied())
+            .collect();
+        let shape = residual_shape(&residuals, &covariances, p, COVERAGE_LEVEL)?;
+        let mut scratch = vec![0.0; p * (p + 1)];
+        let mut mixed = vec![0.0; p * p];
+        let mut log_density = 0.0;
+        let mut distances = Vec::with_capacity(groups.len());
+        for g in groups {
+            let mut d = Vec::with_capacity(g.mahalanobis2.len());
+            for (r, cov) in g
+                .residuals
+                .chunks_exact(p)
+                .zip(g.covariances.chunks_exact(p * p))
+            {
+                for ((m, c), a) in mixed.iter_mut().zip(cov).zip(&shape.added) {
+                    *m = c + a;
+                }
+                let s = score_gaussian(r, &mixed, &mut scratch)?;
+                d.push(s.mahalanobis2);
+                log_density += s.log_density;
+            }
+            distances.push(d);
+        }
+        let n: usize = distances.iter().map(Vec::len).sum();
+        (
+            shape.added,
+            shape.weight,
+            distances,
+            -log_density / n as f64,
+        )
+    } else {
+        let distances: Vec<Vec<f64>> = groups.iter().map(|g| g.mahalanobis2.clone()).collect();
+        (Vec::new(), 0.0, distances, nlpd)
+    };
+    let m2: Vec<f64> = distances.iter().flatten().copied().collect();
+    let by_demonstration: Vec<&[f64]> = distances.iter().map(Vec::as_slice).collect();
+    // Where a demonstration rule cannot be computed (a single held-out
+    // demonstration with scored frames, a left-out quantile of zero), the
+    // pooled factor, and the summary says so.
+    let mut pooled_only = |e: phasekit_gmr::GmrError| {
+        warnings.push(format!(
+            "the covariance is calibrated on the pooled held-out frames only \
+             (not widened for a new demonstration): {e}"
+        ));
+    };
+    let (demonstration_inflation, demonstration_spread) = match rule {
+        Calibration::Off | Calibration::Frames => (1.0, None),
         Calibration::Demonstrations => {
-            let groups: Vec<&[f64]> = groups.iter().map(Vec::as_slice).collect();
-            // Where it cannot be computed (a single held-out demonstration
-            // with scored frames, a left-out quantile of zero), the pooled
-            // factor, and the summary says so.
-            match demonstration_inflation(&groups, COVERAGE_LEVEL) {
-                Ok(lambda) => lambda,
+            match phasekit_gmr::demonstration_inflation(&by_demonstration, COVERAGE_LEVEL) {
+                Ok(lambda) => (lambda, None),
                 Err(e) => {
-                    warnings.push(format!(
-                        "the covariance is calibrated on the pooled held-out frames only \
-                         (not widened for a new demonstration): {e}"
-                    ));
-                    1.0
+                    pooled_only(e);
+                    (1.0, None)
+                }
+            }
+        }
+        Calibration::Predictive => {
+            match new_demonstration_factor(&by_demonstration, COVERAGE_LEVEL) {
+                Ok(f) => (f.factor, Some(f.log_difficulty_sd)),
+                Err(e) => {
+                    pooled_only(e);
+                    (1.0, None)
                 }
             }
         }
     };
-    let p = roles.scored().len();
     let Ok(scale) = coverage_scale(&m2, p, COVERAGE_LEVEL) else {
         return Ok(None);
     };
     let scale = scale * demonstration_inflation;
-    let limit = chi_squared_quantile(COVERAGE_LEVEL, p)?;
     let mean_m2 = m2.iter().sum::<f64>() / m2.len() as f64;
+    // `A` on the scored dims' block of the robot's O × O covariance.
+    let added_covariance = if added.is_empty() || residual_weight == 0.0 {
+        Vec::new()
+    } else {
+        let (o, outputs) = (roles.robot().len(), roles.scored_outputs());
+        let mut full = vec![0.0; o * o];
+        for (a, &j) in outputs.iter().enumerate() {
+            for (b, &k) in outputs.iter().enumerate() {
+                full[j * o + k] = added[a * p + b];
+            }
+        }
+        full
+    };
     Ok(Some(CovarianceCalibration {
         scale,
         level: COVERAGE_LEVEL,
         demonstration_inflation,
         frames: m2.len(),
+        added_covariance,
+        residual_weight,
+        demonstration_spread,
         coverage_before: coverage,
         coverage_after: m2.iter().filter(|&&v| v / scale <= limit).count() as f64 / m2.len() as f64,
         nlpd_before: nlpd,
-        nlpd_after: nlpd_scaled(nlpd, mean_m2, p, scale),
+        nlpd_after: nlpd_scaled(shaped_nlpd, mean_m2, p, scale),
     }))
 }
 
@@ -588,7 +746,7 @@ pub fn fit_cross_validated(
     let plan = FoldPlan::new(data.len(), cv.folds(), cv.fold_seed())?;
     let scored = score_candidates(candidates, &plan, cv.halving(), data, roles);
     let table: Vec<CvRow> = scored.iter().map(|r| r.row.clone()).collect();
-    let Some(best) = winner(&table) else {
+    let Some(best) = winner_by(&table, candidates, cv.selection()) else {
         return Err(TscError::NoCandidate {
             failures: candidates
                 .iter()
@@ -610,7 +768,7 @@ pub fn fit_cross_validated(
     summary.covariance_calibration = calibrate(
         cv.calibration(),
         &table[best],
-        scored[best].mahalanobis2.as_deref(),
+        scored[best].held_out.as_deref(),
         roles,
         &mut summary.warnings,
     )?;

@@ -100,7 +100,9 @@ pub use hsmm_gmr::{DurationFamily, HsmmSettings, HsmmSettingsBuilder};
 pub use krishnan::{
     KrishnanReport, KrishnanSettings, KrishnanSettingsBuilder, KrishnanTsc, TimeClustering,
 };
-pub use method::{Calibration, CrossValidation, GmmSettings, GmmSettingsBuilder, Method};
+pub use method::{
+    Calibration, CrossValidation, GmmSettings, GmmSettingsBuilder, Method, Selection,
+};
 pub use model::Model;
 pub use predictor::{human_frames, OnlinePredictor, Predictor};
 pub use preset::{

@@ -217,7 +217,7 @@ impl GmmSettings {
 /// How a cross-validated choice calibrates the winner's predictive covariance
 /// on the held-out frames of its folds ([`crate::cross_validation`]).
 ///
-/// Serialised as `false`, `true` and `"demonstrations"`: the first two are
+/// Serialised as `false`, `true`, `"demonstrations"` and `"predictive"`: the first two are
 /// what files wrote when calibration was a flag (and the rule was
 /// [`Calibration::Frames`]), so that those files and their readers keep their
 /// meaning; `"off"` and `"frames"` are read too.
@@ -236,6 +236,13 @@ pub enum Calibration {
     /// turn shows it lacks ([`phasekit_gmr::demonstration_inflation`]; never
     /// narrower).
     Demonstrations,
+    /// The model's covariance plus a share of its held-out errors'
+    /// covariance chosen by held-out likelihood
+    /// ([`phasekit_gmr::residual_shape`]), scaled so that a *new
+    /// demonstration* is covered at 95 % in expectation, with how hard a
+    /// demonstration is as a random effect whose spread is measured on the
+    /// held-out demonstrations ([`phasekit_gmr::new_demonstration_factor`]).
+    Predictive,
 }
 
 impl Calibration {
@@ -259,6 +266,7 @@ enum CalibrationName {
     Off,
     Frames,
     Demonstrations,
+    Predictive,
 }
 
 impl From<CalibrationRaw> for Calibration {
@@ -271,6 +279,7 @@ impl From<CalibrationRaw> for Calibration {
                 Calibration::Frames
             }
             CalibrationRaw::Rule(CalibrationName::Demonstrations) => Calibration::Demonstrations,
+            CalibrationRaw::Rule(CalibrationName::Predictive) => Calibration::Predictive,
         }
     }
 }
@@ -281,6 +290,7 @@ impl Serialize for Calibration {
             Calibration::Off => s.serialize_bool(false),
             Calibration::Frames => s.serialize_bool(true),
             Calibration::Demonstrations => s.serialize_str("demonstrations"),
+            Calibration::Predictive => s.serialize_str("predictive"),
         }
     }
 }
@@ -291,6 +301,39 @@ impl fmt::Display for Calibration {
             Calibration::Off => "off",
             Calibration::Frames => "frames",
             Calibration::Demonstrations => "demonstrations",
+            Calibration::Predictive => "predictive",
+        })
+    }
+}
+
+/// How the winner is chosen from the cross-validation table
+/// ([`crate::cross_validation::winner`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Selection {
+    /// The lowest cross-validated error.
+    #[default]
+    Best,
+    /// The one-standard-error rule (Breiman et al. 1984; Hastie, Tibshirani
+    /// and Friedman, *Elements of Statistical Learning* §7.10): among the
+    /// candidates whose error is within one standard error of the lowest
+    /// (its spread over folds over `√K`), the most regularised (the largest
+    /// `reg`, then the fewest states, then the earlier).
+    OneStandardError,
+}
+
+impl Selection {
+    /// The default rule (not written in files).
+    pub fn is_best(&self) -> bool {
+        *self == Selection::Best
+    }
+}
+
+impl fmt::Display for Selection {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Selection::Best => "best",
+            Selection::OneStandardError => "one-se",
         })
     }
 }
@@ -308,6 +351,8 @@ pub struct CrossValidation {
     fold_seed: Option<u64>,
     #[serde(default, skip_serializing_if = "Calibration::is_off")]
     calibration: Calibration,
+    #[serde(default, skip_serializing_if = "Selection::is_best")]
+    selection: Selection,
 }
 
 /// The serialised form of [`CrossValidation`], before validation.
@@ -321,6 +366,8 @@ struct CrossValidationRaw {
     fold_seed: Option<u64>,
     #[serde(default)]
     calibration: Calibration,
+    #[serde(default)]
+    selection: Selection,
 }
 
 impl TryFrom<CrossValidationRaw> for CrossValidation {
@@ -330,6 +377,7 @@ impl TryFrom<CrossValidationRaw> for CrossValidation {
         cv.halving = r.halving;
         cv.fold_seed = r.fold_seed;
         cv.calibration = r.calibration;
+        cv.selection = r.selection;
         Ok(cv)
     }
 }
@@ -357,6 +405,7 @@ impl CrossValidation {
             halving: None,
             fold_seed: None,
             calibration: Calibration::Off,
+            selection: Selection::Best,
         })
     }
     /// Early abandoning of hopeless candidates by successive halving (see
@@ -380,6 +429,15 @@ impl CrossValidation {
     /// How the winner's predictive covariance is calibrated.
     pub fn calibration(&self) -> Calibration {
         self.calibration
+    }
+    /// Choose the winner by this rule ([`Selection::Best`] by default).
+    pub fn with_selection(mut self, rule: Selection) -> Self {
+        self.selection = rule;
+        self
+    }
+    /// How the winner is chosen.
+    pub fn selection(&self) -> Selection {
+        self.selection
     }
     /// The rule of early abandoning, if any.
     pub fn halving(&self) -> Option<&Halving> {

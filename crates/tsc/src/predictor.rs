@@ -17,13 +17,17 @@ type OnlineHsmmRegression = phasekit_gmr::OnlineHsmmRegression<AnyEmission>;
 /// Predicts the robot's dims from the human's, over whole sequences, causally
 /// (made by `Model::predictor`).
 ///
-/// Every predicted covariance is multiplied by the predictor's covariance
-/// scale ([`Predictor::with_covariance_scale`]; 1 unless a calibration set
-/// it), the mean never.
+/// Every predicted covariance `Σ_t` is returned as `c · (Σ_t + A)`: `A` the
+/// predictor's added covariance ([`Predictor::with_added_covariance`]; none
+/// unless a calibration set it) and `c` its covariance scale
+/// ([`Predictor::with_covariance_scale`]; 1 unless a calibration set it).
+/// The mean never changes.
 #[derive(Debug, Clone)]
 pub struct Predictor {
     kind: PredictorKind,
     covariance_scale: f64,
+    /// `A`, `O × O`, or empty.
+    added_covariance: Vec<f64>,
 }
 
 #[derive(Debug, Clone)]
@@ -47,6 +51,7 @@ impl Predictor {
         Predictor {
             kind,
             covariance_scale: 1.0,
+            added_covariance: Vec::new(),
         }
     }
 
@@ -67,6 +72,46 @@ impl Predictor {
     /// The factor every predicted covariance is multiplied by.
     pub fn covariance_scale(&self) -> f64 {
         self.covariance_scale
+    }
+
+    /// The same predictor with `added` (`O × O`, row-major: finite,
+    /// symmetric, nonnegative diagonal) added to every predicted covariance
+    /// before the scale multiplies it: a calibration's covariance shape
+    /// (`FitSummary::covariance_added`). An empty `added` adds nothing.
+    pub fn with_added_covariance(mut self, added: &[f64]) -> Result<Self> {
+        let o = self.n_out();
+        let bad = |reason: String| crate::error::TscError::InvalidSetting {
+            name: "added_covariance",
+            reason,
+        };
+        if !added.is_empty() {
+            if added.len() != o * o {
+                return Err(bad(format!(
+                    "{} values for {o} predicted dims (needs {})",
+                    added.len(),
+                    o * o
+                )));
+            }
+            for i in 0..o {
+                for j in 0..o {
+                    let (a, b) = (added[i * o + j], added[j * o + i]);
+                    if !a.is_finite() || a != b || (i == j && a < 0.0) {
+                        return Err(bad(format!(
+                            "entry ({i}, {j}) is {a} (must be finite, symmetric, ≥ 0 on the diagonal)"
+                        )));
+                    }
+                }
+            }
+        }
+        self.added_covariance = added.to_vec();
+        Ok(self)
+    }
+
+    /// Both parts of a fit's calibration: [`Predictor::with_added_covariance`]
+    /// and [`Predictor::with_covariance_scale`] (nothing without one).
+    pub fn with_calibration(self, summary: &crate::summary::FitSummary) -> Result<Self> {
+        self.with_added_covariance(summary.covariance_added().unwrap_or(&[]))?
+            .with_covariance_scale(summary.covariance_scale())
     }
 
     /// HSMM-GMR of one HSMM.
@@ -104,8 +149,16 @@ impl Predictor {
     /// Predicts a sequence of human frames (human dims only), causally.
     pub fn predict(&self, human: Frames<'_>, with_covariance: bool) -> Result<Prediction> {
         let mut p = self.predict_unscaled(human, with_covariance)?;
-        if self.covariance_scale != 1.0 {
-            if let Some(c) = p.covariance.as_mut() {
+        if let Some(c) = p.covariance.as_mut() {
+            if !self.added_covariance.is_empty() {
+                for frame in c.chunks_exact_mut(self.added_covariance.len()) {
+                    frame
+                        .iter_mut()
+                        .zip(&self.added_covariance)
+                        .for_each(|(v, a)| *v += a);
+                }
+            }
+            if self.covariance_scale != 1.0 {
                 c.iter_mut().for_each(|v| *v *= self.covariance_scale);
             }
         }
@@ -169,6 +222,7 @@ impl Predictor {
         OnlinePredictor {
             kind,
             covariance_scale: self.covariance_scale,
+            added_covariance: self.added_covariance.clone(),
             scaled_covariance: vec![0.0; o * o],
         }
     }
@@ -181,7 +235,10 @@ pub struct OnlinePredictor {
     kind: OnlineKind,
     /// The predictor's covariance scale.
     covariance_scale: f64,
-    /// The last covariance times the scale (used when the scale is not 1).
+    /// The predictor's added covariance (`O × O`, or empty).
+    added_covariance: Vec<f64>,
+    /// `scale · (Σ + A)` of the last step (used when the scale is not 1 or
+    /// something is added).
     scaled_covariance: Vec<f64>,
 }
 
@@ -228,11 +285,22 @@ impl OnlinePredictor {
         with_covariance: bool,
     ) -> Result<FrameEvidence> {
         let evidence = self.step_unscaled(human, with_covariance)?;
-        if with_covariance && self.covariance_scale != 1.0 {
+        if with_covariance && self.transforms_covariance() {
             let c = self.covariance_scale;
             let src = kind_covariance(&self.kind);
-            for (d, s) in self.scaled_covariance.iter_mut().zip(src) {
-                *d = s * c;
+            if self.added_covariance.is_empty() {
+                for (d, s) in self.scaled_covariance.iter_mut().zip(src) {
+                    *d = s * c;
+                }
+            } else {
+                for ((d, s), a) in self
+                    .scaled_covariance
+                    .iter_mut()
+                    .zip(src)
+                    .zip(&self.added_covariance)
+                {
+                    *d = (s + a) * c;
+                }
             }
         }
         Ok(evidence)
@@ -299,11 +367,16 @@ impl OnlinePredictor {
     /// Predictive covariance of the last step (when requested), `O × O`,
     /// times the predictor's covariance scale.
     pub fn covariance(&self) -> &[f64] {
-        if self.covariance_scale != 1.0 {
+        if self.transforms_covariance() {
             &self.scaled_covariance
         } else {
             self.unscaled_covariance()
         }
+    }
+
+    /// Whether the returned covariance differs from the model's.
+    fn transforms_covariance(&self) -> bool {
+        self.covariance_scale != 1.0 || !self.added_covariance.is_empty()
     }
 
     fn unscaled_covariance(&self) -> &[f64] {

@@ -95,14 +95,26 @@ impl FitSummary {
             .as_ref()
             .map_or(1.0, |c| c.scale)
     }
+
+    /// The covariance added to every predicted one before scaling (`O × O`,
+    /// row-major, the robot's dims in model order): the calibration's
+    /// [`CovarianceCalibration::added_covariance`], `None` without one.
+    pub fn covariance_added(&self) -> Option<&[f64]> {
+        self.covariance_calibration
+            .as_ref()
+            .map(|c| c.added_covariance.as_slice())
+            .filter(|a| !a.is_empty())
+    }
 }
 
-/// A predictive covariance calibrated on held-out demonstrations: the factor
-/// `c = λ · q / χ²_level(p)` with `q` the `level` quantile of the held-out
-/// frames' squared Mahalanobis distances (`phasekit_gmr::coverage_scale`) and
-/// `λ` the widening that a left-out demonstration needs
-/// ([`CovarianceCalibration::demonstration_inflation`]), and what it did to
-/// those frames' coverage and NLPD (scored dims, data units).
+/// A predictive covariance calibrated on held-out demonstrations,
+/// `Σ'_t = c · (Σ_t + A)`: `A` a covariance added to the model's
+/// ([`CovarianceCalibration::added_covariance`], none but with the
+/// `predictive` rule), `c = λ · q / χ²_level(p)` with `q` the `level` quantile
+/// of the held-out frames' squared Mahalanobis distances under `Σ_t + A`
+/// (`phasekit_gmr::coverage_scale`) and `λ` the widening (or narrowing) that
+/// a new demonstration needs ([`CovarianceCalibration::demonstration_inflation`]),
+/// and what it did to those frames' coverage and NLPD (scored dims, data units).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[non_exhaustive]
 pub struct CovarianceCalibration {
@@ -110,8 +122,10 @@ pub struct CovarianceCalibration {
     pub scale: f64,
     /// The region's level (0.95).
     pub level: f64,
-    /// `λ ≥ 1`: how much the factor of the pooled held-out frames was
-    /// widened so that a left-out demonstration is covered at `level`
+    /// `λ`: how much the factor of the pooled held-out frames was
+    /// widened so that a left-out demonstration is covered at `level`: with
+    /// the `predictive` rule `f` of `phasekit_gmr::new_demonstration_factor`
+    /// (may be below 1); otherwise `≥ 1`
     /// (`Calibration::Demonstrations`, `phasekit_gmr::demonstration_inflation`;
     /// `scale = λ · Q_level(m²) / χ²_level(p)`); 1 when the frames are pooled
     /// (`Calibration::Frames`), in files written before it existed, and when
@@ -121,6 +135,21 @@ pub struct CovarianceCalibration {
     pub demonstration_inflation: f64,
     /// Held-out frames it was fitted on.
     pub frames: usize,
+    /// `A`, added to every predicted covariance before the scale multiplies
+    /// it: `Σ'_t = scale · (Σ_t + A)` (`O × O`, row-major, the robot's dims in
+    /// model order, in the model's units squared; nonzero only in the scored
+    /// dims' block). `w s R` of `phasekit_gmr::residual_shape` with the
+    /// `predictive` rule; empty (nothing added) with the others.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub added_covariance: Vec<f64>,
+    /// `w`: the share of the held-out errors' covariance in `A` (0: the
+    /// model's own shape; `predictive` rule only).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub residual_weight: f64,
+    /// The standard deviation of the held-out demonstrations' log-difficulty
+    /// (`σ` of `phasekit_gmr::new_demonstration_factor`; `predictive` rule only).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub demonstration_spread: Option<f64>,
     /// Their share inside the `level` region before scaling.
     pub coverage_before: f64,
     /// And after (at least `level` by construction).
@@ -133,6 +162,10 @@ pub struct CovarianceCalibration {
 
 fn no_inflation() -> f64 {
     1.0
+}
+
+fn is_zero(v: &f64) -> bool {
+    *v == 0.0
 }
 
 /// Why EM stopped.

@@ -336,6 +336,72 @@ fn an_abandoned_candidate_never_wins() {
     );
 }
 
+/// The one-standard-error rule against its definition worked by hand: the
+/// standard error of the lowest error, the candidates within it, the most
+/// regularised of them (then the fewest states, then the earlier); the
+/// abandoned and the failed are never eligible; `Best` is `winner`.
+#[test]
+fn the_one_standard_error_rule_takes_the_most_regularised_within_one_se() {
+    use phasekit_tsc::cross_validation::{winner, winner_by};
+    use phasekit_tsc::Selection;
+    let row = |label: &str, mse: f64, sd: f64, abandoned: bool, failed: bool| -> CvRow {
+        let mut v = serde_json::json!({
+            "label": label, "folds_scored": 5, "mse": mse, "mse_sd": sd,
+            "fit_seconds": 0.0, "abandoned": abandoned,
+        });
+        if failed {
+            v["failure"] = "fold 3 of 5: diverged".into();
+        }
+        serde_json::from_value(v).unwrap()
+    };
+    let specs = [
+        "hmm:states=7,reg=1e-3", // the lowest error: 100 ± 8 over 5 folds, SE 8 / 2 = 4
+        "hmm:states=7,reg=1e-2", // 103.9: within, reg 1e-2
+        "gmm:states=5,reg=1e-2", // 104.0: within, reg 1e-2 and fewer states: chosen
+        "hmm:states=5,reg=3e-2", // 104.1: just outside
+        "hmm:states=4,reg=1e-1", // 101: abandoned
+        "hmm:states=3,reg=1e-1", // 101: failed
+    ];
+    let candidates: Vec<(String, Method)> = specs
+        .iter()
+        .map(|s| {
+            (
+                s.to_string(),
+                method_of_spec(s, &PresetOptions::default()).unwrap(),
+            )
+        })
+        .collect();
+    let table = [
+        row(specs[0], 100.0, 8.0, false, false),
+        row(specs[1], 103.9, 1.0, false, false),
+        row(specs[2], 104.0, 30.0, false, false),
+        row(specs[3], 104.1, 1.0, false, false),
+        row(specs[4], 101.0, 1.0, true, false),
+        row(specs[5], 101.0, 1.0, false, true),
+    ];
+    // The abandoned row was scored on fewer folds in a real table.
+    let mut table = table;
+    table[4].folds_scored = 2;
+    assert_eq!(winner(&table), Some(0));
+    assert_eq!(winner_by(&table, &candidates, Selection::Best), Some(0));
+    assert_eq!(
+        winner_by(&table, &candidates, Selection::OneStandardError),
+        Some(2)
+    );
+    // A wider spread of the lowest error takes in the stronger regulariser.
+    table[0].mse_sd = 10.0; // SE 5: 104.1 is within
+    assert_eq!(
+        winner_by(&table, &candidates, Selection::OneStandardError),
+        Some(3)
+    );
+    // No spread: the lowest error itself.
+    table[0].mse_sd = 0.0;
+    assert_eq!(
+        winner_by(&table, &candidates, Selection::OneStandardError),
+        Some(0)
+    );
+}
+
 /// `auto:grid=relative` is a setting that means the same in any unit: the
 /// data with the human in centimetres and the robot in kilometres give the
 /// same choice, the same table (errors scaled by the robot's unit²) and the

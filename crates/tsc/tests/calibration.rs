@@ -298,6 +298,125 @@ fn the_covariance_scale_multiplies_batch_and_online_covariances_never_the_mean()
 }
 
 #[test]
+fn an_added_covariance_goes_in_before_the_scale_in_batch_and_online() {
+    let seqs = phased(6, 8, 0.05);
+    let data = SequenceSet::new(&seqs, 3).unwrap();
+    let (model, _) = method_of_spec("hmm:states=5,reg=1e-3", &PresetOptions::default())
+        .unwrap()
+        .fit(&data, &roles())
+        .unwrap();
+    let plain = model.predictor(&roles()).unwrap();
+    let added = [0.02, 0.0, 0.0, 0.0];
+    let calibrated = plain
+        .clone()
+        .with_added_covariance(&added)
+        .unwrap()
+        .with_covariance_scale(0.3)
+        .unwrap();
+    let human: Vec<f64> = seqs[0].chunks(3).map(|x| x[0]).collect();
+    let input = Frames::new(&human, 1).unwrap();
+    let a = plain.predict(input, true).unwrap();
+    let b = calibrated.predict(input, true).unwrap();
+    assert_eq!(a.mean, b.mean);
+    let (ca, cb) = (a.covariance.unwrap(), b.covariance.unwrap());
+    for (k, (x, y)) in ca.iter().zip(&cb).enumerate() {
+        assert_eq!(*y, (x + added[k % 4]) * 0.3);
+    }
+    // Online = batch to the bit, frame by frame.
+    let mut online = calibrated.online();
+    for (t, h) in human.iter().enumerate() {
+        online.step(&[*h], true).unwrap();
+        assert_eq!(online.mean(), &b.mean[t * 2..t * 2 + 2]);
+        assert_eq!(online.covariance(), &cb[t * 4..t * 4 + 4]);
+    }
+    // Refused: the wrong size, asymmetric, a negative variance, not finite.
+    for bad in [
+        vec![1.0; 3],
+        vec![1.0, 0.5, 0.0, 1.0],
+        vec![-1.0, 0.0, 0.0, 1.0],
+        vec![f64::NAN, 0.0, 0.0, 1.0],
+    ] {
+        assert!(
+            plain.clone().with_added_covariance(&bad).is_err(),
+            "{bad:?}"
+        );
+    }
+}
+
+#[test]
+fn the_predictive_rule_is_the_residual_shape_and_the_new_demonstration_factor_of_the_folds() {
+    // The folds worked by hand (as in the left-out rule's test): residuals
+    // and covariances of every held-out frame; the shape and factor from
+    // them; the summary's added covariance, scale, coverage and NLPD agree.
+    let seqs = with_unlike(6, 1, 21);
+    let data = SequenceSet::new(&seqs, 3).unwrap();
+    let spec = "hmm:states=5,reg=1e-4";
+    let method = method_of_spec(spec, &PresetOptions::default()).unwrap();
+    let folds = 3;
+    let n = seqs.len();
+    let (mut residuals, mut covariances) = (vec![Vec::new(); n], vec![Vec::new(); n]);
+    for f in 0..folds {
+        let train: Vec<usize> = (0..n).filter(|k| k % folds != f).collect();
+        let (model, _) = method.fit(&data.subset(&train).unwrap(), &roles()).unwrap();
+        let p = model.predictor(&roles()).unwrap();
+        for k in (0..n).filter(|k| k % folds == f) {
+            let human: Vec<f64> = seqs[k].chunks(3).map(|x| x[0]).collect();
+            let pred = p.predict(Frames::new(&human, 1).unwrap(), true).unwrap();
+            let cov = pred.covariance.unwrap();
+            for (t, x) in seqs[k].chunks(3).enumerate() {
+                residuals[k].push(x[1] - pred.mean[t * 2]);
+                covariances[k].push(cov[t * 4]);
+            }
+        }
+    }
+    let all_r: Vec<f64> = residuals.iter().flatten().copied().collect();
+    let all_c: Vec<f64> = covariances.iter().flatten().copied().collect();
+    let shape = phasekit_gmr::residual_shape(&all_r, &all_c, 1, 0.95).unwrap();
+    let mut scratch = [0.0; 2];
+    let m2: Vec<Vec<f64>> = residuals
+        .iter()
+        .zip(&covariances)
+        .map(|(r, c)| {
+            r.iter()
+                .zip(c)
+                .map(|(r, c)| {
+                    score_gaussian(&[*r], &[c + shape.added[0]], &mut scratch)
+                        .unwrap()
+                        .mahalanobis2
+                })
+                .collect()
+        })
+        .collect();
+    let flat: Vec<f64> = m2.iter().flatten().copied().collect();
+    let pooled = phasekit_gmr::coverage_scale(&flat, 1, 0.95).unwrap();
+    let refs: Vec<&[f64]> = m2.iter().map(Vec::as_slice).collect();
+    let f = phasekit_gmr::new_demonstration_factor(&refs, 0.95).unwrap();
+    let (_, summary) = cv(spec, folds, Calibration::Predictive)
+        .fit(&data, &roles())
+        .unwrap();
+    let c = summary.covariance_calibration.unwrap();
+    assert_eq!(c.residual_weight, shape.weight);
+    // A on the scored output's entry of the robot's 2 × 2 covariance only.
+    assert_eq!(c.added_covariance.len(), 4);
+    // (The folds hold the demonstrations in another order: sums to 1e-12.)
+    let close = |x: f64, y: f64| (x - y).abs() <= 1e-12 * y.abs();
+    assert!(shape.weight > 0.0, "{shape:?}");
+    assert!(close(c.added_covariance[0], shape.added[0]), "{c:?}");
+    assert_eq!(&c.added_covariance[1..], &[0.0; 3]);
+    assert!(close(c.demonstration_inflation, f.factor), "{c:?} {f:?}");
+    assert!(close(c.demonstration_spread.unwrap(), f.log_difficulty_sd));
+    assert!(
+        (c.scale - pooled * f.factor).abs() <= 1e-12 * c.scale,
+        "{c:?}"
+    );
+    let limit = chi_squared_quantile(0.95, 1).unwrap();
+    let inside = flat.iter().filter(|&&v| v / c.scale <= limit).count() as f64;
+    assert_eq!(c.coverage_after, inside / flat.len() as f64);
+    // The demonstration unlike the others makes the spread large.
+    assert!(f.log_difficulty_sd > 0.3, "{f:?}");
+}
+
+#[test]
 fn scored_dims_are_a_validated_subset_of_the_robots() {
     let r = Roles::new(vec![0], vec![1, 2, 3]).unwrap();
     assert_eq!(r.scored(), &[1, 2, 3]);

@@ -500,9 +500,17 @@ pub fn cv_table_markdown(fit: &FitSummary, standardised: bool) -> String {
         ));
     }
     if let Some(c) = &fit.covariance_calibration {
+        let shape = if c.added_covariance.is_empty() {
+            String::new()
+        } else {
+            format!(
+                "the held-out errors' covariance added with weight {:.3}, then ",
+                c.residual_weight
+            )
+        };
         s.push_str(&format!(
             "\nCalibration of the chosen candidate's predictive covariance on its {} held-out frames: \
-             multiplied by {:.4} (widened {:.3}× for a new demonstration), so that {:.1} % of them \
+             {shape}multiplied by {:.4} ({:.3}× the pooled factor for a new demonstration), so that {:.1} % of them \
              (was {:.1} %) fall inside the {:.0} % region; NLPD {:.3} → {:.3} nats.\n",
             c.frames,
             c.scale,
