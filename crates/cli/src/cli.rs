@@ -316,9 +316,12 @@ states=auto (--states auto) chooses the base states over 2..=max-states by BIC,
 or by G-means with select=gmeans (hmm, tsc-hmm*: λ's states; gmm-tsc: its mixture).
 auto chooses the family, states, reg and emission by cross-validated prediction error
 on the training demonstrations (keys: grid=small|default|relative|positions|mixed, folds=K,
-families=hmm+tsc-hmm+gmm, halving=on|off, calibrate=on|demonstrations|frames|off (on = demonstrations): its 95 % regions widened to
-cover 95 % of a left-out demonstration, or of the pooled held-out frames; reg-units=relative
-makes every candidate's reg relative); fit --format md shows its cross-validation table.";
+families=hmm+tsc-hmm+gmm, halving=on|off, choose=best|one-se (the lowest error, or the most
+regularised within one standard error of it), calibrate=on|predictive|demonstrations|frames|off
+(on = predictive: its 95 % regions shaped by the held-out errors and sized to cover 95 % of a
+new demonstration in expectation; demonstrations: widened to cover a left-out one; frames: the
+pooled held-out frames); reg-units=relative makes every candidate's reg relative);
+fit --format md shows its cross-validation table.";
 
 /// The help text after a command's options: examples, then the presets.
 fn with_presets(examples: &str) -> String {

@@ -241,7 +241,7 @@ pub struct AutoSettings {
     calibrate: Calibration,
     /// How the winner is chosen (not written when [`Selection::Best`]).
     #[serde(default, skip_serializing_if = "Selection::is_best")]
-    select: Selection,
+    choose: Selection,
 }
 
 fn default_calibration() -> Calibration {
@@ -258,7 +258,7 @@ impl Default for AutoSettings {
             families: None,
             halving: true,
             calibrate: Calibration::Predictive,
-            select: Selection::Best,
+            choose: Selection::Best,
         }
     }
 }
@@ -295,8 +295,8 @@ impl AutoSettingsBuilder {
         self
     }
     /// How the winner is chosen ([`Selection::Best`] by default).
-    pub fn select(mut self, rule: Selection) -> Self {
-        self.0.select = rule;
+    pub fn choose(mut self, rule: Selection) -> Self {
+        self.0.choose = rule;
         self
     }
     /// Validates the settings: at least 2 folds, every family one of the grid's.
@@ -376,7 +376,7 @@ impl AutoSettings {
     }
     /// How the winner is chosen.
     pub fn selection(&self) -> Selection {
-        self.select
+        self.choose
     }
 
     /// Whether `key` is one of `auto`'s own keys (`grid`, `folds`, `families`,
@@ -384,7 +384,7 @@ impl AutoSettings {
     pub fn is_key(key: &str) -> bool {
         matches!(
             key,
-            "grid" | "folds" | "families" | "halving" | "calibrate" | "select"
+            "grid" | "folds" | "families" | "halving" | "calibrate" | "choose"
         )
     }
 
@@ -404,12 +404,12 @@ impl AutoSettings {
                 "off" => b.halving(false),
                 _ => return Err(bad("halving", format!("expected on or off, got `{value}`"))),
             },
-            "select" => match value {
-                "best" => b.select(Selection::Best),
-                "one-se" => b.select(Selection::OneStandardError),
+            "choose" => match value {
+                "best" => b.choose(Selection::Best),
+                "one-se" => b.choose(Selection::OneStandardError),
                 _ => {
                     return Err(bad(
-                        "select",
+                        "choose",
                         format!("expected best or one-se, got `{value}`"),
                     ))
                 }
@@ -465,7 +465,7 @@ impl AutoSettings {
         let cv = CrossValidation::new(self.candidates(base)?, self.folds)?
             .with_fold_seed(base.seed())
             .with_calibration(self.calibrate)
-            .with_selection(self.select);
+            .with_selection(self.choose);
         Ok(Method::CrossValidated(if self.halving {
             cv.with_halving(Halving::default())
         } else {

@@ -271,7 +271,39 @@ fn keys_are_validated_and_errors_name_them() {
     assert_eq!(name(set_key("grid", "huge")), "grid");
     assert_eq!(name(set_key("families", "hmm+lstm")), "families");
     assert_eq!(name(set_key("halving", "maybe")), "halving");
+    assert_eq!(name(set_key("choose", "worst")), "choose");
+    assert_eq!(name(set_key("calibrate", "loosely")), "calibrate");
     assert_eq!(name(set_key("colour", "blue")), "method");
+    use phasekit_tsc::{Calibration, Selection};
+    let d = AutoSettings::default();
+    assert_eq!(
+        (d.selection(), d.calibration()),
+        (Selection::Best, Calibration::Predictive)
+    );
+    assert_eq!(
+        set_key("choose", "one-se").unwrap().selection(),
+        Selection::OneStandardError
+    );
+    assert_eq!(
+        set_key("calibrate", "on").unwrap().calibration(),
+        Calibration::Predictive
+    );
+    assert_eq!(
+        set_key("calibrate", "demonstrations")
+            .unwrap()
+            .calibration(),
+        Calibration::Demonstrations
+    );
+    // The rule reaches the method, and a file of the settings reads back the same.
+    let one_se = set_key("choose", "one-se").unwrap();
+    let Method::CrossValidated(cv) = one_se.method(&PresetOptions::default()).unwrap() else {
+        panic!("auto is a cross-validated choice");
+    };
+    assert_eq!(cv.selection(), Selection::OneStandardError);
+    let back: AutoSettings =
+        serde_json::from_str(&serde_json::to_string(&one_se).unwrap()).unwrap();
+    assert_eq!(back, one_se);
+    assert!(!serde_json::to_string(&d).unwrap().contains("choose"));
     let ok = set_key("families", "hmm+tsc-hmm").unwrap();
     assert_eq!(ok.families().unwrap(), ["hmm", "tsc-hmm"]);
     let cands = ok.candidates(&PresetOptions::default()).unwrap();
