@@ -43,7 +43,9 @@ pub const FORMAT: &str = "phasekit-model";
 pub const VERSION: u64 = 4;
 
 /// The lowest model-file version that describes `model` fitted by `method`
-/// (see [`VERSION`]): 3 for what version-2 readers do not know — a
+/// (see [`VERSION`]): 4 for a covariance calibrated for a new demonstration
+/// (`auto`'s `predictive` rule, which adds a covariance to the model's); 3
+/// for what version-2 readers do not know — a
 /// regularisation relative to the positions (`reg_units: "positions"`) or a
 /// covariance calibrated by left-out demonstrations; 2 for what version-1
 /// readers do not know — an HSMM, a mixture (`gmm`, `gmm-tsc`) whose
@@ -378,7 +380,8 @@ impl ModelFile {
             return Err(CliError::new(format!(
                 "version {} does not describe its model and settings (they need version {} or later: \
                  an hsmm model, non-Gaussian mixtures or a relative regularisation 2, a covariance \
-                 calibrated by left-out demonstrations or a regularisation in positions' variances 3)",
+                 calibrated by left-out demonstrations or a regularisation in positions' variances 3, \
+                 a covariance calibrated for a new demonstration 4)",
                 self.version,
                 version_for(&self.model, &self.method.settings)
             )));
@@ -412,6 +415,21 @@ impl ModelFile {
         l.check_indices().map_err(CliError::new)?;
         if let Some(s) = &self.standardisation {
             s.check(d)?;
+        }
+        // The calibration's scale and added covariance (finite, the robot's
+        // size, symmetric positive semi-definite), which only version 4
+        // readers apply.
+        if let Some(c) = &self.fit.covariance_calibration {
+            if !c.added_covariance.is_empty() && self.version < 4 {
+                return Err(CliError::new(format!(
+                    "version {} does not describe its calibration: an added covariance needs version 4",
+                    self.version
+                )));
+            }
+            self.model
+                .predictor(&self.roles)
+                .and_then(|p| p.with_calibration(&self.fit))
+                .map_err(|e| CliError::new(format!("covariance calibration: {e}")))?;
         }
         Ok(())
     }

@@ -175,7 +175,12 @@ fn predict_applies_autos_calibration_to_the_covariance_only() {
     let cal = &r_on["covariance_calibration"];
     let scale = cal["scale"].as_f64().unwrap();
     assert!(scale > 0.0 && (scale - 1.0).abs() > 1e-6, "{cal}");
-    assert!(cal["coverage_after"].as_f64().unwrap() >= 0.95, "{cal}");
+    // The held-out frames inside after calibration: at least 95 % unless the
+    // factor for a new demonstration narrowed the pooled one (f < 1).
+    let after = cal["coverage_after"].as_f64().unwrap();
+    let f = cal["demonstration_inflation"].as_f64().unwrap();
+    assert!(after >= 0.95 || f < 1.0, "{cal}");
+    assert!(cal["residual_weight"].as_f64().unwrap() > 0.0, "{cal}");
     // Every scored candidate has its held-out coverage in the table.
     let table = r_on["cv_table"].as_array().unwrap();
     assert!(table
@@ -189,6 +194,62 @@ fn predict_applies_autos_calibration_to_the_covariance_only() {
     // (nor the covariance it adds): the file says version 4.
     let v: serde_json::Value = serde_json::from_str(&file).unwrap();
     assert_eq!(v["version"], 4);
+    // A file whose calibration it does not describe, or whose added
+    // covariance is not one, is refused by name before any prediction.
+    let n = v["fit"]["covariance_calibration"]["added_covariance"]
+        .as_array()
+        .unwrap()
+        .len();
+    let o = (n as f64).sqrt() as usize;
+    let mut indefinite = vec![0.0; n];
+    indefinite[1] = 1.0; // (0, 1) and (1, 0): [[0, 1], [1, 0]] on the first two dims
+    indefinite[o] = 1.0;
+    for (name, edit, says) in [
+        (
+            "v3.json",
+            ("version", serde_json::json!(3)),
+            "an added covariance needs version 4",
+        ),
+        (
+            "short.json",
+            ("added_covariance", serde_json::json!([1.0, 0.0])),
+            "added_covariance",
+        ),
+        (
+            "indefinite.json",
+            ("added_covariance", serde_json::json!(indefinite)),
+            "not positive semi-definite",
+        ),
+    ] {
+        let mut bad = v.clone();
+        match edit.0 {
+            // A version-3 rule with the added covariance of version 4.
+            "version" => {
+                bad["version"] = edit.1;
+                bad["method"]["settings"]["calibration"] = "demonstrations".into();
+            }
+            key => bad["fit"]["covariance_calibration"][key] = edit.1,
+        }
+        let path = dir.path().join(name);
+        std::fs::write(&path, serde_json::to_string(&bad).unwrap()).unwrap();
+        let one = std::fs::read_dir(&data)
+            .unwrap()
+            .map(|e| e.unwrap().path())
+            .find(|p| p.extension().is_some_and(|x| x == "csv"))
+            .unwrap();
+        let out = phasekit()
+            .args(["predict", "--model"])
+            .arg(&path)
+            .arg("--data")
+            .arg(&one)
+            .assert()
+            .failure()
+            .get_output()
+            .stderr
+            .clone();
+        let err = String::from_utf8(out).unwrap();
+        assert!(err.contains(name) && err.contains(says), "{name}: {err}");
+    }
 
     let test = std::fs::read_dir(&data)
         .unwrap()

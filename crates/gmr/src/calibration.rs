@@ -412,8 +412,17 @@ pub fn new_demonstration_factor(groups: &[&[f64]], level: f64) -> Result<NewDemo
                 "coverage calibration: demonstration {index} or the others have a quantile of zero"
             )));
         }
+        // Distances so far apart that their ratios leave the floating-point
+        // range (1e300 against 1e-300) cannot be calibrated.
+        let shapes = own.iter().map(|x| x / difficulty);
+        if !difficulty.is_finite() || shapes.clone().any(|u| !u.is_finite()) {
+            return Err(GmrError::InvalidDims(format!(
+                "coverage calibration: the distances of demonstration {index} against the others' \
+                 quantile overflow"
+            )));
+        }
         log_difficulty.push(difficulty.ln());
-        shape.extend(own.iter().map(|x| x / difficulty));
+        shape.extend(shapes);
     }
     shape.sort_by(f64::total_cmp);
     let nf = n as f64;
@@ -447,7 +456,11 @@ pub fn new_demonstration_factor(groups: &[&[f64]], level: f64) -> Result<NewDemo
     let (lo_shape, hi_shape) = (shape[0].max(f64::MIN_POSITIVE), shape[shape.len() - 1]);
     let mut lo = lo_shape.ln() + nodes[0] - 1.0;
     let mut hi = hi_shape.ln() + nodes[NODES - 1] + 1.0;
-    while hi - lo > 1e-12 {
+    // At most 200 halvings (the bracket spans < 4000 in ln: 1e-12 in < 60).
+    for _ in 0..200 {
+        if hi - lo <= 1e-12 {
+            break;
+        }
         let mid = 0.5 * (lo + hi);
         if expected(mid) < level {
             lo = mid;
@@ -455,8 +468,14 @@ pub fn new_demonstration_factor(groups: &[&[f64]], level: f64) -> Result<NewDemo
             hi = mid;
         }
     }
+    let factor = hi.exp();
+    if !(factor.is_finite() && factor > 0.0) {
+        return Err(GmrError::InvalidDims(format!(
+            "coverage calibration: the factor for a new demonstration is {factor}"
+        )));
+    }
     Ok(NewDemonstration {
-        factor: hi.exp(),
+        factor,
         log_difficulty_mean: mu,
         log_difficulty_sd: sigma,
         demonstrations: n,
@@ -501,7 +520,9 @@ pub struct NewDemonstration {
 /// the scalar then fixes the size.
 ///
 /// `residuals`: `n × p` row-major; `covariances`: `n × p × p`. `w = 0` and
-/// no added covariance when `R` is singular (a dim predicted without error).
+/// no added covariance when `R` is singular or nearly so (a dim predicted
+/// without error, two dims whose errors are proportional: a Cholesky pivot
+/// below 1e-10 of its diagonal).
 /// Errors with no frame, sizes that disagree, or a covariance that is not
 /// positive definite.
 pub fn residual_shape(
@@ -575,7 +596,10 @@ pub fn residual_shape(
     let (mut best_weight, mut best_nlpd) = (0.0, own_nlpd);
     for k in -8..=8 {
         let w = 10f64.powf(k as f64 / 4.0);
-        let nlpd = score(w * size, &mut m2)?;
+        // A weight whose covariance cannot be scored is not a candidate.
+        let Ok(nlpd) = score(w * size, &mut m2) else {
+            continue;
+        };
         if nlpd < best_nlpd {
             (best_weight, best_nlpd) = (w, nlpd);
         }
@@ -612,7 +636,10 @@ fn inverse_spd(a: &[f64], p: usize) -> Option<Vec<f64>> {
         for j in 0..=i {
             let s = a[i * p + j] - (0..j).map(|k| l[i * p + k] * l[j * p + k]).sum::<f64>();
             if i == j {
-                if !(s > 0.0 && s.is_finite()) {
+                // Numerically singular too (errors of two dims proportional):
+                // a pivot below 1e-10 of its diagonal would give R⁻¹ huge
+                // entries and `s` noise.
+                if !(s > 1e-10 * a[i * p + i] && s.is_finite()) {
                     return None;
                 }
                 l[i * p + i] = s.sqrt();

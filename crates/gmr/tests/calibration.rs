@@ -486,6 +486,12 @@ fn the_new_demonstration_factor_refuses_what_it_cannot_calibrate() {
     assert!(f(&[&a[..], &[-1.0][..]], 0.95).is_err());
     assert!(f(&[&a[..], &a[..]], 1.0).is_err());
     assert!(f(&[&[0.0; 4][..], &a[..]], 0.95).is_err());
+    // Distances whose ratios overflow: an error, not a hang or a NaN factor.
+    let mut huge = vec![1.0; 19];
+    huge.push(1e10);
+    assert!(f(&[&huge[..], &[1e-300; 20][..], &[2e-300; 20][..]], 0.95).is_err());
+    assert!(f(&[&[1e10; 5][..], &[1e-300; 5][..], &[1e-300; 5][..]], 0.95).is_err());
+    assert!(f(&[&[1e200; 5][..], &[1.0; 5][..]], 0.95).is_err());
 }
 
 /// Frames whose errors are `N(0, E)` for a fixed `E` (`p = 3`), predicted
@@ -644,6 +650,24 @@ fn the_residual_shape_keeps_the_model_when_an_error_never_varies() {
     assert_eq!(s.weight, 0.0);
     assert_eq!(s.added, vec![0.0; 4]);
     assert_eq!(s.nlpd, s.model_nlpd);
+}
+
+#[test]
+fn the_residual_shape_keeps_the_model_when_two_errors_are_proportional() {
+    // The second dim's error is 3.7 times the first's: R is singular up to
+    // rounding; nothing is mixed in (no weight from R⁻¹'s rounding noise).
+    for m in [3.7, -0.2, 1e-3, 250.0] {
+        let r: Vec<f64> = (0..60)
+            .flat_map(|t| {
+                let x = (t as f64 * 0.37).sin();
+                [x, m * x]
+            })
+            .collect();
+        let c: Vec<f64> = (0..60).flat_map(|_| [0.01, 0.0, 0.0, 0.01]).collect();
+        let s = phasekit_gmr::residual_shape(&r, &c, 2, 0.95).unwrap();
+        assert_eq!(s.weight, 0.0, "m = {m}: {s:?}");
+        assert!(s.nlpd.is_finite());
+    }
 }
 
 #[test]

@@ -92,7 +92,7 @@ pub fn cross_validate(
     roles: &Roles,
 ) -> Result<Vec<Result<f64>>> {
     let plan = FoldPlan::new(data.len(), folds, None)?;
-    let table = score_candidates(candidates, &plan, None, data, roles);
+    let table = score_candidates(candidates, &plan, None, data, roles, false);
     Ok(table
         .into_iter()
         .map(|r| match r.scored.failure {
@@ -302,6 +302,7 @@ fn score_fold(
     f: usize,
     data: &SequenceSet,
     roles: &Roles,
+    keep: bool,
 ) -> FoldScore {
     let clock = Instant::now();
     let folds = plan.folds;
@@ -355,8 +356,10 @@ fn score_fold(
                     Ok(s) => {
                         if let Some(demonstration) = held_out.last_mut() {
                             demonstration.mahalanobis2.push(s.mahalanobis2);
-                            demonstration.residuals.extend_from_slice(&residual);
-                            demonstration.covariances.extend_from_slice(&block);
+                            if keep {
+                                demonstration.residuals.extend_from_slice(&residual);
+                                demonstration.covariances.extend_from_slice(&block);
+                            }
                         }
                         *log_density += s.log_density;
                     }
@@ -389,6 +392,7 @@ fn score_candidates(
     halving: Option<&Halving>,
     data: &SequenceSet,
     roles: &Roles,
+    keep: bool,
 ) -> Vec<CvRowScored> {
     let n = candidates.len();
     let folds = plan.folds;
@@ -407,7 +411,7 @@ fn score_candidates(
             .collect();
         let results: Vec<FoldScore> = pairs
             .par_iter()
-            .map(|&(c, f)| score_fold(&candidates[c].1, plan, f, data, roles))
+            .map(|&(c, f)| score_fold(&candidates[c].1, plan, f, data, roles, keep))
             .collect();
         for ((c, _), res) in pairs.into_iter().zip(results) {
             if failure[c].is_some() {
@@ -524,7 +528,7 @@ pub fn cv_table(cv: &CrossValidation, data: &SequenceSet, roles: &Roles) -> Resu
     roles.check(data.dim())?;
     let plan = FoldPlan::new(data.len(), cv.folds(), cv.fold_seed())?;
     Ok(
-        score_candidates(cv.candidates(), &plan, cv.halving(), data, roles)
+        score_candidates(cv.candidates(), &plan, cv.halving(), data, roles, false)
             .into_iter()
             .map(|r| r.row)
             .collect(),
@@ -627,46 +631,20 @@ fn calibrate(
     // The shape: the model's covariance, or (predictive) plus a share of the
     // held-out errors' covariance; the frames' distances and mean log
     // density under it.
-    let (added, residual_weight, distances, shaped_nlpd) = if rule == Calibration::Predictive {
-        let residuals: Vec<f64> = groups
-            .iter()
-            .flat_map(|g| g.residuals.iter().copied())
-            .collect();
-        let covariances: Vec<f64> = groups
-            .iter()
-            .flat_map(|g| g.covariances.iter().copied())
-            .collect();
-        let shape = residual_shape(&residuals, &covariances, p, COVERAGE_LEVEL)?;
-        let mut scratch = vec![0.0; p * (p + 1)];
-        let mut mixed = vec![0.0; p * p];
-        let mut log_density = 0.0;
-        let mut distances = Vec::with_capacity(groups.len());
-        for g in groups {
-            let mut d = Vec::with_capacity(g.mahalanobis2.len());
-            for (r, cov) in g
-                .residuals
-                .chunks_exact(p)
-                .zip(g.covariances.chunks_exact(p * p))
-            {
-                for ((m, c), a) in mixed.iter_mut().zip(cov).zip(&shape.added) {
-                    *m = c + a;
-                }
-                let s = score_gaussian(r, &mixed, &mut scratch)?;
-                d.push(s.mahalanobis2);
-                log_density += s.log_density;
+    let (added, residual_weight, distances, shaped_nlpd) = match (rule == Calibration::Predictive)
+        .then(|| shaped(groups, p))
+    {
+        Some(Ok(shaped)) => shaped,
+        other => {
+            if let Some(Err(e)) = other {
+                // Best effort, as the rest of the calibration: the model's shape.
+                warnings.push(format!(
+                    "the covariance keeps the model's shape (the held-out errors' could not be mixed in): {e}"
+                ));
             }
-            distances.push(d);
+            let distances: Vec<Vec<f64>> = groups.iter().map(|g| g.mahalanobis2.clone()).collect();
+            (Vec::new(), 0.0, distances, nlpd)
         }
-        let n: usize = distances.iter().map(Vec::len).sum();
-        (
-            shape.added,
-            shape.weight,
-            distances,
-            -log_density / n as f64,
-        )
-    } else {
-        let distances: Vec<Vec<f64>> = groups.iter().map(|g| g.mahalanobis2.clone()).collect();
-        (Vec::new(), 0.0, distances, nlpd)
     };
     let m2: Vec<f64> = distances.iter().flatten().copied().collect();
     let by_demonstration: Vec<&[f64]> = distances.iter().map(Vec::as_slice).collect();
@@ -704,6 +682,12 @@ fn calibrate(
         return Ok(None);
     };
     let scale = scale * demonstration_inflation;
+    if !(scale.is_finite() && scale > 0.0) {
+        warnings.push(format!(
+            "the covariance is not calibrated: the factor would be {scale}"
+        ));
+        return Ok(None);
+    }
     let mean_m2 = m2.iter().sum::<f64>() / m2.len() as f64;
     // `A` on the scored dims' block of the robot's O × O covariance.
     let added_covariance = if added.is_empty() || residual_weight == 0.0 {
@@ -733,6 +717,51 @@ fn calibrate(
     }))
 }
 
+/// The added covariance (`p × p`), its weight, the held-out frames'
+/// distances under `Σ_t + A` per demonstration, and their mean negative log
+/// density.
+type Shaped = (Vec<f64>, f64, Vec<Vec<f64>>, f64);
+
+/// The `predictive` rule's shape on the held-out frames ([`residual_shape`]).
+fn shaped(groups: &[HeldOut], p: usize) -> Result<Shaped> {
+    let residuals: Vec<f64> = groups
+        .iter()
+        .flat_map(|g| g.residuals.iter().copied())
+        .collect();
+    let covariances: Vec<f64> = groups
+        .iter()
+        .flat_map(|g| g.covariances.iter().copied())
+        .collect();
+    let shape = residual_shape(&residuals, &covariances, p, COVERAGE_LEVEL)?;
+    let mut scratch = vec![0.0; p * (p + 1)];
+    let mut mixed = vec![0.0; p * p];
+    let mut log_density = 0.0;
+    let mut distances = Vec::with_capacity(groups.len());
+    for g in groups {
+        let mut d = Vec::with_capacity(g.mahalanobis2.len());
+        for (r, cov) in g
+            .residuals
+            .chunks_exact(p)
+            .zip(g.covariances.chunks_exact(p * p))
+        {
+            for ((m, c), a) in mixed.iter_mut().zip(cov).zip(&shape.added) {
+                *m = c + a;
+            }
+            let s = score_gaussian(r, &mixed, &mut scratch)?;
+            d.push(s.mahalanobis2);
+            log_density += s.log_density;
+        }
+        distances.push(d);
+    }
+    let n: usize = distances.iter().map(Vec::len).sum();
+    Ok((
+        shape.added,
+        shape.weight,
+        distances,
+        -log_density / n as f64,
+    ))
+}
+
 /// Fits a [`Method::CrossValidated`]: the table on `data`, then the winner
 /// refitted on all of `data`; the summary is the winner's, with the choice,
 /// the table and the whole time.
@@ -744,7 +773,9 @@ pub fn fit_cross_validated(
     let clock = Instant::now();
     let candidates = cv.candidates();
     let plan = FoldPlan::new(data.len(), cv.folds(), cv.fold_seed())?;
-    let scored = score_candidates(candidates, &plan, cv.halving(), data, roles);
+    // Residuals and covariances are kept only where the rule reads them.
+    let keep = cv.calibration() == Calibration::Predictive;
+    let scored = score_candidates(candidates, &plan, cv.halving(), data, roles, keep);
     let table: Vec<CvRow> = scored.iter().map(|r| r.row.clone()).collect();
     let Some(best) = winner_by(&table, candidates, cv.selection()) else {
         return Err(TscError::NoCandidate {

@@ -102,6 +102,12 @@ impl Predictor {
                     }
                 }
             }
+            if !positive_semidefinite(added, o) {
+                return Err(bad(
+                    "not positive semi-definite: it could make a predicted covariance indefinite"
+                        .into(),
+                ));
+            }
         }
         self.added_covariance = added.to_vec();
         Ok(self)
@@ -435,4 +441,27 @@ fn kind_covariance(kind: &OnlineKind) -> &[f64] {
 pub fn human_frames(seq: Frames<'_>, roles: &Roles) -> Result<Vec<f64>> {
     roles.check(seq.dim())?;
     Ok(select(seq, roles.human()))
+}
+
+/// Whether a symmetric `o × o` matrix is positive semi-definite: its
+/// Cholesky factorisation succeeds after adding `1e-12` of its largest
+/// diagonal entry (rounding) to the diagonal.
+fn positive_semidefinite(a: &[f64], o: usize) -> bool {
+    let jitter = 1e-12 * (0..o).map(|i| a[i * o + i]).fold(0.0, f64::max) + f64::MIN_POSITIVE;
+    let mut l = vec![0.0; o * o];
+    for i in 0..o {
+        for j in 0..=i {
+            let mut s = a[i * o + j] - (0..j).map(|k| l[i * o + k] * l[j * o + k]).sum::<f64>();
+            if i == j {
+                s += jitter;
+                if s.is_nan() || s <= 0.0 {
+                    return false;
+                }
+                l[i * o + i] = s.sqrt();
+            } else {
+                l[i * o + j] = s / l[j * o + j];
+            }
+        }
+    }
+    true
 }
