@@ -20,19 +20,26 @@
 //! [`DEFAULT_GRID`] or [`SMALL_GRID`], and its family is its preset's name.
 //!
 //! **Calibrated uncertainty.** The winner's predictive covariance is then
-//! multiplied by the factor that makes 95 % of the frames of a demonstration
-//! it has not seen fall inside its 95 % regions, estimated on the folds'
-//! held-out frames by leaving each held-out demonstration out of the
-//! calibration in turn (training demonstrations only; see
-//! [`crate::cross_validation`] and [`Calibration`]): the bands are the data's,
-//! not the regulariser's. The factor and the coverage/NLPD before and after
-//! are in the summary ([`crate::FitSummary::covariance_calibration`]).
+//! given the shape of its held-out errors as far as held-out likelihood asks
+//! for it, and sized so that a new demonstration's frames fall inside its
+//! 95 % regions at 95 % in expectation, with how hard a demonstration is
+//! measured on the folds' held-out demonstrations ([`Calibration::Predictive`];
+//! training demonstrations only; see [`crate::cross_validation`]): the bands
+//! are the data's, not the regulariser's. The added covariance, the factor
+//! and the coverage/NLPD before and after are in the summary
+//! ([`crate::FitSummary::covariance_calibration`]). The calibration is fitted
+//! on the scored dims (the robot's positions, from the command); the other
+//! robot dims' covariance is multiplied by the same factor, nothing added, and
+//! is not calibrated.
 //!
-//! Keys (`auto:key=value`, [`AutoSettings::set`]): `grid=small|default|relative`,
-//! `folds=K` (`K ≥ 2`, clamped to the number of demonstrations),
-//! `families=hmm+tsc-hmm` (a `+`-separated subset of the grid's families),
-//! `halving=on|off`, `calibrate=on|demonstrations|frames|off` (`on` =
-//! `demonstrations`, the default; `frames` pools the held-out frames).
+//! Keys (`auto:key=value`, [`AutoSettings::set`]):
+//! `grid=small|default|relative|positions|mixed`, `folds=K` (`K ≥ 2`, clamped
+//! to the number of demonstrations), `families=hmm+tsc-hmm` (a `+`-separated
+//! subset of the grid's families), `halving=on|off`, `choose=best|one-se`
+//! ([`crate::Selection`]), `calibrate=on|predictive|demonstrations|frames|off`
+//! (`on` = `predictive`, the default; `demonstrations` widens the pooled
+//! factor by what leaving each held-out demonstration out misses; `frames`
+//! pools the held-out frames).
 //!
 //! Not done: warm starts across folds (an HMM fitted on folds `A ∪ B` started
 //! from the one fitted on `A` is a different fit, so the choice would depend
@@ -380,7 +387,7 @@ impl AutoSettings {
     }
 
     /// Whether `key` is one of `auto`'s own keys (`grid`, `folds`, `families`,
-    /// `halving`, `calibrate`).
+    /// `halving`, `calibrate`, `choose`).
     pub fn is_key(key: &str) -> bool {
         matches!(
             key,

@@ -307,7 +307,7 @@ impl fmt::Display for Calibration {
 }
 
 /// How the winner is chosen from the cross-validation table
-/// ([`crate::cross_validation::winner`]).
+/// ([`crate::cross_validation::winner_by`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum Selection {
@@ -317,8 +317,10 @@ pub enum Selection {
     /// The one-standard-error rule (Breiman et al. 1984; Hastie, Tibshirani
     /// and Friedman, *Elements of Statistical Learning* §7.10): among the
     /// candidates whose error is within one standard error of the lowest
-    /// (its spread over folds over `√K`), the most regularised (the largest
-    /// `reg`, then the fewest states, then the earlier).
+    /// (the sample standard deviation of its per-fold errors over `√K`), the
+    /// most regularised: the largest `reg` (compared as numbers, so within
+    /// one unit: a grid mixing `reg-pos` and `reg-rel` compares them as if
+    /// alike), then the fewest states, then the earlier.
     OneStandardError,
 }
 

@@ -152,7 +152,8 @@ pub struct CovarianceCalibration {
     pub demonstration_spread: Option<f64>,
     /// Their share inside the `level` region before scaling.
     pub coverage_before: f64,
-    /// And after (at least `level` by construction).
+    /// And after: at least `level` by construction, except with the
+    /// `predictive` rule when its factor for a new demonstration is below 1.
     pub coverage_after: f64,
     /// Their mean negative log predictive density before scaling (nats).
     pub nlpd_before: f64,
