@@ -107,6 +107,37 @@ def test_python_reproduces_the_command_on_its_model_file(folder, tmp_path):
     np.testing.assert_array_equal(ours, p.mean)  # online = batch, frame by frame
 
 
+def test_autos_calibration_reaches_python_batch_and_online(folder, tmp_path):
+    # `auto` calibrates its covariance (the held-out errors' covariance added,
+    # then a factor): Python's batch and online predictions carry it exactly
+    # as the command's, and differ from the uncalibrated model's bands only.
+    files = {}
+    for name, spec in [("on", "auto:grid=small,folds=3"), ("off", "auto:grid=small,folds=3,calibrate=off")]:
+        files[name] = tmp_path / f"{name}.json"
+        run("fit", "--data", folder, "--method", spec, "-o", files[name])
+    cal = json.loads(files["on"].read_text())["fit"]["covariance_calibration"]
+    assert cal["residual_weight"] > 0 and len(cal["added_covariance"]) > 0
+    test = folder / "test_00.csv"
+    run("predict", "--model", files["on"], "--data", test, "--covariance", "-o", tmp_path / "pred.csv")
+    _, rows = read_csv(tmp_path / "pred.csv")
+    cli = np.array([[float(v) for v in r[1:]] for r in rows])
+    on, off = InteractionModel.load(files["on"]), InteractionModel.load(files["off"])
+    demo_ = datasets.read_demonstration(test)
+    p, q = on.predict(demo_), off.predict(demo_)
+    o = len(on.robot_features)
+    iu = np.triu_indices(o)
+    np.testing.assert_array_equal(p.mean, cli[:, :o])
+    np.testing.assert_array_equal(p.covariance[:, iu[0], iu[1]], cli[:, o:])
+    np.testing.assert_array_equal(p.mean, q.mean)
+    added = np.array(cal["added_covariance"]).reshape(o, o)
+    np.testing.assert_allclose(p.covariance, (q.covariance + added) * cal["scale"], rtol=1e-12)
+    online = on.online()
+    for t, frame in enumerate(demo_.values[:, :3]):
+        mean, cov = online.step_with_covariance(frame)
+        np.testing.assert_allclose(mean, p.mean[t], rtol=1e-12, atol=1e-15)
+        np.testing.assert_allclose(cov, p.covariance[t], rtol=1e-12, atol=1e-18)
+
+
 def test_python_fit_equals_the_commands_fit_and_its_file_is_read_by_the_command(folder, tmp_path):
     for method, extra in [("hmm", []), ("tsc-hmm", []), ("hmm:states=5", ["--standardise"])]:
         cli_file = tmp_path / "cli.json"
