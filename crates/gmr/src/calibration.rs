@@ -292,37 +292,10 @@ fn order_statistic(sorted: &[f64], q: f64) -> f64 {
 /// distance that is not finite and `≥ 0`, `level` outside `(0, 1)`, or a
 /// left-out quantile of zero.
 pub fn demonstration_inflation(groups: &[&[f64]], level: f64) -> Result<f64> {
-    if !(level > 0.0 && level < 1.0) {
-        return Err(GmrError::InvalidDims(format!(
-            "coverage calibration: the level must lie in (0, 1), got {level}"
-        )));
-    }
-    // Empty groups (a demonstration without a scored frame) are left out;
-    // errors name a demonstration by its index in `groups`.
-    let groups: Vec<(usize, &[f64])> = groups
-        .iter()
-        .copied()
-        .enumerate()
-        .filter(|(_, g)| !g.is_empty())
-        .collect();
-    if groups.len() < 2 {
-        return Err(GmrError::InvalidDims(
-            "coverage calibration: leaving one demonstration out needs at least two".into(),
-        ));
-    }
-    for (_, g) in &groups {
-        check_distances(g)?;
-    }
+    let groups = demonstration_groups(groups, level)?;
     let mut ratios: Vec<f64> = Vec::with_capacity(groups.iter().map(|(_, g)| g.len()).sum());
     for (d, (index, group)) in groups.iter().enumerate() {
-        let mut others: Vec<f64> = groups
-            .iter()
-            .enumerate()
-            .filter(|(e, _)| *e != d)
-            .flat_map(|(_, (_, g))| g.iter().copied())
-            .collect();
-        others.sort_by(f64::total_cmp);
-        let threshold = order_statistic(&others, level);
+        let threshold = left_out_threshold(&groups, d, level);
         if threshold <= 0.0 {
             return Err(GmrError::InvalidDims(format!(
                 "coverage calibration: without demonstration {index} the quantile of the squared distances is zero"
@@ -372,38 +345,12 @@ pub fn demonstration_inflation(groups: &[&[f64]], level: f64) -> Result<f64> {
 /// Errors with fewer than two non-empty groups, a distance that is not
 /// finite and `≥ 0`, `level` outside `(0, 1)`, or a quantile of zero.
 pub fn new_demonstration_factor(groups: &[&[f64]], level: f64) -> Result<NewDemonstration> {
-    if !(level > 0.0 && level < 1.0) {
-        return Err(GmrError::InvalidDims(format!(
-            "coverage calibration: the level must lie in (0, 1), got {level}"
-        )));
-    }
-    let groups: Vec<(usize, &[f64])> = groups
-        .iter()
-        .copied()
-        .enumerate()
-        .filter(|(_, g)| !g.is_empty())
-        .collect();
+    let groups = demonstration_groups(groups, level)?;
     let n = groups.len();
-    if n < 2 {
-        return Err(GmrError::InvalidDims(
-            "coverage calibration: a new demonstration's spread needs at least two demonstrations"
-                .into(),
-        ));
-    }
-    for (_, g) in &groups {
-        check_distances(g)?;
-    }
     let mut log_difficulty = Vec::with_capacity(n);
     let mut shape: Vec<f64> = Vec::with_capacity(groups.iter().map(|(_, g)| g.len()).sum());
     for (d, (index, group)) in groups.iter().enumerate() {
-        let mut others: Vec<f64> = groups
-            .iter()
-            .enumerate()
-            .filter(|(e, _)| *e != d)
-            .flat_map(|(_, (_, g))| g.iter().copied())
-            .collect();
-        others.sort_by(f64::total_cmp);
-        let threshold = order_statistic(&others, level);
+        let threshold = left_out_threshold(&groups, d, level);
         let mut own: Vec<f64> = group.iter().map(|v| v / threshold).collect();
         own.sort_by(f64::total_cmp);
         let difficulty = order_statistic(&own, level);
@@ -666,6 +613,46 @@ fn inverse_spd(a: &[f64], p: usize) -> Option<Vec<f64>> {
         }
     }
     Some(inverse)
+}
+
+/// The checked input of the demonstration rules: `level` in `(0, 1)`, the
+/// non-empty groups (a demonstration without a scored frame is left out;
+/// errors name a demonstration by its index in `groups`), at least two of
+/// them, every distance finite and `≥ 0`.
+fn demonstration_groups<'a>(groups: &[&'a [f64]], level: f64) -> Result<Vec<(usize, &'a [f64])>> {
+    if !(level > 0.0 && level < 1.0) {
+        return Err(GmrError::InvalidDims(format!(
+            "coverage calibration: the level must lie in (0, 1), got {level}"
+        )));
+    }
+    let groups: Vec<(usize, &[f64])> = groups
+        .iter()
+        .copied()
+        .enumerate()
+        .filter(|(_, g)| !g.is_empty())
+        .collect();
+    if groups.len() < 2 {
+        return Err(GmrError::InvalidDims(
+            "coverage calibration: leaving one demonstration out needs at least two".into(),
+        ));
+    }
+    for (_, g) in &groups {
+        check_distances(g)?;
+    }
+    Ok(groups)
+}
+
+/// `Q_{−d}`: the empirical `level` quantile of every group's distances but
+/// group `d`'s (the threshold a calibration without `d` would set).
+fn left_out_threshold(groups: &[(usize, &[f64])], d: usize, level: f64) -> f64 {
+    let mut others: Vec<f64> = groups
+        .iter()
+        .enumerate()
+        .filter(|(e, _)| *e != d)
+        .flat_map(|(_, (_, g))| g.iter().copied())
+        .collect();
+    others.sort_by(f64::total_cmp);
+    order_statistic(&others, level)
 }
 
 /// The mean negative log predictive density after multiplying the covariance

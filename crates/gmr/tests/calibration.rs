@@ -213,17 +213,20 @@ fn nlpd_after_scaling_is_the_nlpd_of_the_scaled_covariance() {
     }
 }
 
+/// The `⌈level · n⌉`-th smallest of `v`: the empirical quantile the rules use.
+fn level_quantile(mut v: Vec<f64>, level: f64) -> f64 {
+    v.sort_by(f64::total_cmp);
+    let k = ((level * v.len() as f64).ceil() as usize).clamp(1, v.len());
+    v[k - 1]
+}
+
 /// The definition of `demonstration_inflation`, counted directly: the
 /// smallest `λ ≥ 1` among the candidates (1 and every ratio of a distance to
 /// its left-out threshold) for which `Σ_d #{t : m²_{d,t} / Q_{−d} ≤ λ} ≥ level · n`
 /// (the ratio compared, as the function does, so that a frame whose ratio is
 /// `λ` counts whatever the rounding of `λ Q_{−d}`).
 fn inflation_by_counting(groups: &[Vec<f64>], level: f64) -> f64 {
-    let quantile = |mut v: Vec<f64>| {
-        v.sort_by(f64::total_cmp);
-        let k = ((level * v.len() as f64).ceil() as usize).clamp(1, v.len());
-        v[k - 1]
-    };
+    let quantile = |v: Vec<f64>| level_quantile(v, level);
     let thresholds: Vec<f64> = (0..groups.len())
         .map(|d| {
             quantile(
@@ -367,11 +370,7 @@ fn demonstration_inflation_refuses_what_it_cannot_calibrate() {
 /// spread, and the expected coverage of a new demonstration by a fine
 /// Riemann sum over the normal density (20,001 points on ±10 sd), at `f`.
 fn expected_new_coverage(groups: &[Vec<f64>], level: f64, f: f64) -> f64 {
-    let quantile = |mut v: Vec<f64>| {
-        v.sort_by(f64::total_cmp);
-        let k = ((level * v.len() as f64).ceil() as usize).clamp(1, v.len());
-        v[k - 1]
-    };
+    let quantile = |v: Vec<f64>| level_quantile(v, level);
     let n = groups.len() as f64;
     let (mut logs, mut shapes) = (Vec::new(), Vec::new());
     for d in 0..groups.len() {
