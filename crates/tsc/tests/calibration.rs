@@ -263,8 +263,9 @@ fn calibrating_for_left_out_demonstrations_widens_only_when_they_disagree() {
     }
 }
 
-#[test]
-fn the_covariance_scale_multiplies_batch_and_online_covariances_never_the_mean() {
+/// Six out-and-back demonstrations and the uncalibrated predictor of a
+/// 5-state HMM fitted on them.
+fn fitted_predictor() -> (Vec<Vec<f64>>, phasekit_tsc::Predictor) {
     let seqs = phased(6, 8, 0.05);
     let data = SequenceSet::new(&seqs, 3).unwrap();
     let (model, _) = method_of_spec("hmm:states=5,reg=1e-3", &PresetOptions::default())
@@ -272,6 +273,12 @@ fn the_covariance_scale_multiplies_batch_and_online_covariances_never_the_mean()
         .fit(&data, &roles())
         .unwrap();
     let plain = model.predictor(&roles()).unwrap();
+    (seqs, plain)
+}
+
+#[test]
+fn the_covariance_scale_multiplies_batch_and_online_covariances_never_the_mean() {
+    let (seqs, plain) = fitted_predictor();
     let scaled = plain.clone().with_covariance_scale(0.3).unwrap();
     assert_eq!(scaled.covariance_scale(), 0.3);
     let human: Vec<f64> = seqs[0].chunks(3).map(|x| x[0]).collect();
@@ -299,13 +306,7 @@ fn the_covariance_scale_multiplies_batch_and_online_covariances_never_the_mean()
 
 #[test]
 fn an_added_covariance_goes_in_before_the_scale_in_batch_and_online() {
-    let seqs = phased(6, 8, 0.05);
-    let data = SequenceSet::new(&seqs, 3).unwrap();
-    let (model, _) = method_of_spec("hmm:states=5,reg=1e-3", &PresetOptions::default())
-        .unwrap()
-        .fit(&data, &roles())
-        .unwrap();
-    let plain = model.predictor(&roles()).unwrap();
+    let (seqs, plain) = fitted_predictor();
     let added = [0.02, 0.0, 0.0, 0.0];
     let calibrated = plain
         .clone()
