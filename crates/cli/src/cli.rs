@@ -315,8 +315,11 @@ The command-line flags set the defaults of every key.
 states=auto (--states auto) chooses the base states over 2..=max-states by BIC,
 or by G-means with select=gmeans (hmm, tsc-hmm*: λ's states; gmm-tsc: its mixture).
 auto chooses the family, states, reg and emission by cross-validated prediction error
-on the training demonstrations (keys: grid=small|default|relative|positions|mixed, folds=K,
-families=hmm+tsc-hmm+gmm, halving=on|off, choose=best|one-se (the lowest error, or the most
+on the training demonstrations and predicts with the mean of the best 5 (keys:
+grid=unit-free|small|default|relative|positions|mixed (unit-free, the default: every reg a
+fraction of a variance of the data, the same in any unit; default: reg in the data's units),
+folds=K, families=hmm+tsc-hmm+gmm, halving=on|off, ensemble=K (the mean of the best K; 1: the
+best alone), choose=best|one-se (one candidate: the lowest error, or the most
 regularised within one standard error of it), calibrate=on|predictive|demonstrations|frames|off
 (on = predictive: its 95 % regions shaped by the held-out errors and sized to cover 95 % of a
 new demonstration in expectation; demonstrations: widened to cover a left-out one; frames: the

@@ -98,7 +98,7 @@ pub fn parse_method(spec: &str, defaults: &PresetOptions) -> Result<NamedMethod,
                 "states" | "tsc-states" | "window" | "reg" | "reg-rel" | "reg-pos" | "emission"
             ) {
                 return Err(bad(&format!(
-                    "auto chooses `{k}` by cross-validation; narrow its search with grid=small|default|relative|positions|mixed or families=hmm+tsc-hmm+gmm \
+                    "auto chooses `{k}` by cross-validation; narrow its search with grid=unit-free|small|default|relative|positions|mixed or families=hmm+tsc-hmm+gmm \
                      (reg-units=relative makes every candidate's reg a fraction of each feature's variance)"
                 )));
             }

@@ -35,15 +35,17 @@ pub const FORMAT: &str = "phasekit-model";
 ///   relative to the positions (`"reg_units": "positions"`);
 /// * 4: `auto`'s covariance calibrated for a new demonstration
 ///   (`"calibration": "predictive"`), with a covariance added to the model's
-///   before scaling (`added_covariance`), which version-3 readers would ignore.
+///   before scaling (`added_covariance`), which version-3 readers would ignore;
+/// * 5: the mean of several models (`"kind": "ensemble"`, `auto`'s
+///   `ensemble=K`), and `auto` settings that ask for it.
 ///
 /// A file is written with the lowest version that describes its model
 /// ([`version_for`]), so a model an older phasekit can use stays readable by
 /// it; this build reads every version from 1 to [`VERSION`].
-pub const VERSION: u64 = 4;
+pub const VERSION: u64 = 5;
 
 /// The lowest model-file version that describes `model` fitted by `method`
-/// (see [`VERSION`]): 4 for a covariance calibrated for a new demonstration
+/// (see [`VERSION`]): 5 for the mean of several models; 4 for a covariance calibrated for a new demonstration
 /// (`auto`'s `predictive` rule, which adds a covariance to the model's); 3
 /// for what version-2 readers do not know — a
 /// regularisation relative to the positions (`reg_units: "positions"`) or a
@@ -58,6 +60,7 @@ pub fn version_for(model: &Model, method: &Method) -> u64 {
         Model::Hsmm(_) => true,
         Model::Gmm(g) | Model::GmmTsc { mixture: g, .. } => g.components().as_gaussian().is_none(),
         Model::Hmm(_) | Model::TscHmm { .. } => false,
+        Model::Ensemble(_) => return 5,
     };
     method_version(method).max(if model_needs_2 { 2 } else { 1 })
 }
@@ -86,6 +89,10 @@ fn method_version(method: &Method) -> u64 {
                 Calibration::Frames => 2,
                 Calibration::Demonstrations => 3,
                 Calibration::Predictive => 4,
+            }])
+            .chain([match cv.selection() {
+                phasekit_tsc::Selection::Mean(_) => 5,
+                _ => 1,
             }])
             .max()
             .unwrap_or(1),
@@ -381,7 +388,7 @@ impl ModelFile {
                 "version {} does not describe its model and settings (they need version {} or later: \
                  an hsmm model, non-Gaussian mixtures or a relative regularisation 2, a covariance \
                  calibrated by left-out demonstrations or a regularisation in positions' variances 3, \
-                 a covariance calibrated for a new demonstration 4)",
+                 a covariance calibrated for a new demonstration 4, the mean of several models 5)",
                 self.version,
                 version_for(&self.model, &self.method.settings)
             )));
@@ -456,6 +463,7 @@ fn gaussians(model: &Model) -> Vec<(&'static str, &dyn StateMoments)> {
             v
         }
         Model::Gmm(g) => vec![("the mixture", g.components() as &dyn StateMoments)],
+        Model::Ensemble(members) => members.iter().flat_map(|m| gaussians(&m.model)).collect(),
         Model::GmmTsc { tsc, mixture } => vec![
             ("the mixture", mixture.components() as &dyn StateMoments),
             ("the windowed mixture", tsc.mixture().components()),

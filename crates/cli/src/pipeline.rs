@@ -369,6 +369,21 @@ fn joint_input_checked(mf: &ModelFile, table: &Table) -> Result<(Vec<f64>, Vec<u
     Ok((out, rejected))
 }
 
+/// `log b_k(x_t)`, `T × K`, of the emission a model segments with (an
+/// ensemble's: its first member's).
+fn segmenting_log_density(model: &Model, f: Frames<'_>) -> Result<Vec<f64>> {
+    Ok(match model {
+        Model::Hmm(h) => h.emission().log_density(f)?,
+        Model::Hsmm(h) => h.emission().log_density(f)?,
+        Model::TscHmm { model, .. } => model.base().emission().log_density(f)?,
+        Model::Gmm(g) | Model::GmmTsc { mixture: g, .. } => g.components().log_density(f)?,
+        Model::Ensemble(members) => match members.first() {
+            Some(m) => segmenting_log_density(&m.model, f)?,
+            None => return Err(CliError::new("an ensemble model has no member")),
+        },
+    })
+}
+
 /// Frames (`T × d`, as the model sees them) that are infinite somewhere or have
 /// density zero under every state of the model's segmenting emission.
 fn unexplained(
@@ -385,12 +400,7 @@ fn unexplained(
     }
     let f =
         Frames::new(frames, d).map_err(|e| CliError::new(format!("{}: {e}", path.display())))?;
-    let log_b = match &mf.model {
-        Model::Hmm(h) => h.emission().log_density(f)?,
-        Model::Hsmm(h) => h.emission().log_density(f)?,
-        Model::TscHmm { model, .. } => model.base().emission().log_density(f)?,
-        Model::Gmm(g) | Model::GmmTsc { mixture: g, .. } => g.components().log_density(f)?,
-    };
+    let log_b = segmenting_log_density(&mf.model, f)?;
     let s = log_b.len() / f.len().max(1);
     bad.extend(
         log_b

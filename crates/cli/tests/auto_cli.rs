@@ -2,7 +2,7 @@
 //! carry the cross-validation table, evaluate names the choice per seed and
 //! the choice depends on the training demonstrations only, keys are validated.
 
-use crate::common::{interaction_folder, phasekit, plain, write_frames};
+use crate::common::{interaction_folder, parse_csv, parse_stream, phasekit, plain, write_frames};
 use phasekit_tsc::synthetic;
 
 fn stdout(cmd: &mut assert_cmd::Command) -> String {
@@ -36,8 +36,11 @@ fn fit_auto_reports_the_cross_validation_table_and_keeps_it_in_the_model_file() 
     .unwrap();
     let fit = &report; // the summary is flattened into the report
     let table = fit["cv_table"].as_array().unwrap();
-    assert_eq!(table.len(), 9, "{fit}");
+    // The 9 candidates and the mean of the best (by default), its row last.
+    assert_eq!(table.len(), 10, "{fit}");
     let chosen = fit["chosen"].as_str().unwrap();
+    assert!(chosen.starts_with("mean of 3: "), "{chosen}");
+    assert_eq!(table[9]["label"], chosen);
     let row = table.iter().find(|r| r["label"] == chosen).unwrap();
     assert_eq!(row["folds_scored"], 3);
     assert_eq!(row["abandoned"], false);
@@ -46,6 +49,11 @@ fn fit_auto_reports_the_cross_validation_table_and_keeps_it_in_the_model_file() 
     let file = std::fs::read_to_string(&model).unwrap();
     assert!(file.contains("\"cv_table\""));
     assert!(file.contains(chosen));
+    // A version-4 reader does not know the mean of several models: version 5.
+    let v: serde_json::Value = serde_json::from_str(&file).unwrap();
+    assert_eq!(v["version"], 5);
+    assert_eq!(v["model"]["kind"], "ensemble");
+    assert_eq!(v["model"]["members"].as_array().unwrap().len(), 3);
 
     let md = stdout(
         phasekit()
@@ -125,7 +133,7 @@ fn evaluate_names_the_choice_per_seed_and_the_test_set_does_not_move_it() {
             .arg(&data),
     );
     assert!(
-        md.contains("Chosen by auto:grid=small,families=gmm on data (1 seeds): gmm:"),
+        md.contains("Chosen by auto:grid=small,families=gmm on data (1 seeds): mean of 2: gmm:"),
         "{md}"
     );
 }
@@ -168,8 +176,11 @@ fn predict_applies_autos_calibration_to_the_covariance_only() {
         .unwrap();
         (model, report)
     };
-    let (on, r_on) = fit("auto:grid=small,folds=3", "on.json");
-    let (off, r_off) = fit("auto:grid=small,folds=3,calibrate=off", "off.json");
+    let (on, r_on) = fit("auto:grid=small,folds=3,ensemble=1", "on.json");
+    let (off, r_off) = fit(
+        "auto:grid=small,folds=3,calibrate=off,ensemble=1",
+        "off.json",
+    );
     assert_eq!(r_on["chosen"], r_off["chosen"]);
     assert!(r_off.get("covariance_calibration").is_none(), "{r_off}");
     let cal = &r_on["covariance_calibration"];
@@ -320,4 +331,84 @@ fn predict_applies_autos_calibration_to_the_covariance_only() {
         }
     }
     assert!(checked > 0, "no covariance column in {h_on:?}");
+}
+
+/// `auto`'s default, the mean of the best candidates, in every command:
+/// `predict` gives finite means and covariances, `stream` the same frame by
+/// frame (online = batch, calibration included), `segment` and the plots run
+/// on its first member.
+#[test]
+fn the_mean_of_the_best_runs_in_every_command_and_streams_what_it_predicts() {
+    let (dir, data) = interaction_folder(7, 3, 6, plain);
+    let test = data.join("test_00.csv");
+    let model = dir.path().join("mean.json");
+    phasekit()
+        .args([
+            "fit",
+            "--method",
+            "auto:grid=small,folds=3,ensemble=3",
+            "--data",
+        ])
+        .arg(&data)
+        .arg("-o")
+        .arg(&model)
+        .assert()
+        .success();
+    let predicted = stdout(
+        phasekit()
+            .args(["predict", "--covariance", "--model"])
+            .arg(&model)
+            .arg("--data")
+            .arg(&test),
+    );
+    let (_, rows) = parse_csv(&predicted);
+    assert!(rows.len() > 10);
+    assert!(rows.iter().flatten().all(|v| v.is_finite()));
+    let segmented = stdout(
+        phasekit()
+            .args(["segment", "--model"])
+            .arg(&model)
+            .arg("--data")
+            .arg(&test),
+    );
+    assert_eq!(segmented.lines().count(), rows.len() + 1);
+    let text = std::fs::read_to_string(&test).unwrap();
+    let human: String = text
+        .lines()
+        .map(|l| l.split(',').take(3).collect::<Vec<_>>().join(",") + "\n")
+        .collect();
+    let streamed = phasekit()
+        .args(["stream", "--quiet", "--covariance", "--model"])
+        .arg(&model)
+        .write_stdin(human)
+        .assert()
+        .success()
+        .get_output()
+        .stdout
+        .clone();
+    let (_, srows, status) = parse_stream(&String::from_utf8(streamed).unwrap(), true);
+    assert_eq!(srows.len(), rows.len());
+    assert!(status.iter().all(|s| s == "ok"), "{status:?}");
+    for (a, b) in srows.iter().zip(&rows) {
+        assert_eq!(a.len(), b.len());
+        for (x, y) in a.iter().zip(b) {
+            assert!(
+                (x - y).abs() <= 1e-9 * (1.0 + y.abs()),
+                "stream {x} vs predict {y}"
+            );
+        }
+    }
+    for plot in ["segmentation", "prediction", "states"] {
+        let svg = dir.path().join(format!("{plot}.svg"));
+        phasekit()
+            .args(["plot", plot, "--model"])
+            .arg(&model)
+            .arg("--data")
+            .arg(&test)
+            .arg("-o")
+            .arg(&svg)
+            .assert()
+            .success();
+        assert!(std::fs::metadata(&svg).unwrap().len() > 1000);
+    }
 }

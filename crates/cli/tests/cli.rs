@@ -592,8 +592,8 @@ fn bad_inputs_are_refused_with_located_errors() {
     )
     .unwrap();
     std::fs::write(
-        d.join("v5.json"),
-        text.replacen("\"version\": 1", "\"version\": 5", 1),
+        d.join("v6.json"),
+        text.replacen("\"version\": 1", "\"version\": 6", 1),
     )
     .unwrap();
     std::fs::write(
@@ -618,11 +618,11 @@ fn bad_inputs_are_refused_with_located_errors() {
         &["foreign.json", "not a phasekit model file"],
     );
     run(
-        predict("v5.json"),
+        predict("v6.json"),
         &[
-            "v5.json",
-            "version 5 is not supported",
-            "reads versions 1 to 4",
+            "v6.json",
+            "version 6 is not supported",
+            "reads versions 1 to 5",
         ],
     );
     run(

@@ -132,7 +132,7 @@ fn model_file_versions_say_what_the_file_needs() {
     // An hsmm model in a file that claims version 1, or a version from the future: refused.
     for (v, says) in [
         (1, "version 1 does not describe its model"),
-        (5, "version 5 is not supported"),
+        (6, "version 6 is not supported"),
     ] {
         let mut j = model_json(&hsmm);
         j["version"] = v.into();

@@ -113,14 +113,17 @@ fn files_say_version_3_for_what_version_2_readers_do_not_know() {
     // auto calibrates for a new demonstration by default: version 4, by
     // name; by left-out demonstrations version 3, by name; with
     // calibrate=frames the flag of version 2, which older readers know.
-    let predictive = model_json(&fit("auto:grid=small,folds=3,halving=off", "auto4.json"));
+    let predictive = model_json(&fit(
+        "auto:grid=small,folds=3,halving=off,ensemble=1",
+        "auto4.json",
+    ));
     assert_eq!(predictive["version"], 4);
     assert_eq!(
         predictive["method"]["settings"]["calibration"],
         "predictive"
     );
     let auto = fit(
-        "auto:grid=small,folds=3,halving=off,calibrate=demonstrations",
+        "auto:grid=small,folds=3,halving=off,calibrate=demonstrations,ensemble=1",
         "auto.json",
     );
     let j = model_json(&auto);
@@ -131,7 +134,7 @@ fn files_say_version_3_for_what_version_2_readers_do_not_know() {
         .unwrap();
     assert!(lambda >= 1.0);
     let frames = fit(
-        "auto:grid=small,folds=3,halving=off,calibrate=frames",
+        "auto:grid=small,folds=3,halving=off,calibrate=frames,ensemble=1",
         "frames.json",
     );
     let jf = model_json(&frames);

@@ -38,6 +38,8 @@ pub fn action_hmm(model: &Model) -> Result<Hmm<Gaussian>> {
         Model::Hmm(h) => gaussian_hmm(h),
         Model::TscHmm { model, .. } => gaussian_hmm(model.union().unwrap_or(model.base())),
         Model::Gmm(g) | Model::GmmTsc { mixture: g, .. } => mixture_as_hmm(g),
+        // The best-ranked member stands for the mean (its states and filter).
+        Model::Ensemble(_) => action_hmm(model.representative()),
         Model::Hsmm(_) => Err(RecognitionError::InvalidLibrary(
             "an hsmm model has explicit durations: a library of interactions composes HMMs \
              (fit the action with hmm or a tsc-hmm preset)"

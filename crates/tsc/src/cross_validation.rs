@@ -35,7 +35,15 @@
 //!
 //! **Choice.** The lowest cross-validated error wins ([`Selection::Best`]),
 //! or, with [`Selection::OneStandardError`], the most regularised candidate
-//! within one standard error of it ([`winner_by`]).
+//! within one standard error of it ([`winner_by`]); or, with
+//! [`Selection::Mean`]`(K)`, the `K` lowest (of those [`winner`] may choose
+//! from: after halving, the survivors) are each refitted on all the data and
+//! predict by their equally weighted mean, a [`crate::Model::Ensemble`]
+//! ([`crate::Predictor::ensemble`]). The mean's own held-out predictions are
+//! its members' combined by the same formula (`y − μ = Σ w_i r_i`, `Σ = Σ w_i
+//! (Σ_i + (r_i − r)(r_i − r)ᵀ)`, no refit), which gives its row of the table
+//! (appended last, labelled `mean of K: a + b + …`, [`mean_label`]) and the
+//! frames its covariance is calibrated on.
 //!
 //! **Folds.** Demonstration `k` is held out by fold `k mod K`, or, with a fold
 //! seed, the demonstrations are first shuffled by `ChaCha8Rng::seed_from_u64(seed)`
@@ -285,6 +293,8 @@ struct FoldOutcome {
 /// The scorable frames of one held-out demonstration, scored dims only.
 #[derive(Debug, Clone, Default)]
 struct HeldOut {
+    /// The fold that held it out.
+    fold: usize,
     /// Per frame, `m²` under the predictive covariance.
     mahalanobis2: Vec<f64>,
     /// Per frame, `y − μ` (`p` values).
@@ -331,7 +341,10 @@ fn score_fold(
     let mut calibration = Some((Vec::new(), 0.0));
     for &k in &held {
         if let Some((held_out, _)) = calibration.as_mut() {
-            held_out.push(HeldOut::default());
+            held_out.push(HeldOut {
+                fold: f,
+                ..HeldOut::default()
+            });
         }
         let seq = data.get(k);
         let human = select(seq, roles.human());
@@ -550,7 +563,8 @@ pub fn winner(table: &[CvRow]) -> Option<usize> {
         .map(|(i, _)| i)
 }
 
-/// The winner of a table by `rule`: [`winner`] for [`Selection::Best`]; for
+/// The winner of a table by `rule`: [`winner`] for [`Selection::Best`] (and
+/// for [`Selection::Mean`], whose first member it is); for
 /// [`Selection::OneStandardError`], among the candidates eligible for
 /// [`winner`] whose error is at most the lowest plus its standard error
 /// (`sd / √(K − 1)`, `sd` the spread of its per-fold errors over the `K`
@@ -563,7 +577,8 @@ pub fn winner_by(
     rule: Selection,
 ) -> Option<usize> {
     let best = winner(table)?;
-    if rule == Selection::Best {
+    if rule != Selection::OneStandardError {
+        // Best, and the mean's first member.
         return Some(best);
     }
     let b = &table[best];
@@ -773,8 +788,8 @@ pub fn fit_cross_validated(
     let clock = Instant::now();
     let candidates = cv.candidates();
     let plan = FoldPlan::new(data.len(), cv.folds(), cv.fold_seed())?;
-    // Residuals and covariances are kept only where the rule reads them.
-    let keep = cv.calibration() == Calibration::Predictive;
+    // Residuals and covariances are kept only where the rule or the mean reads them.
+    let keep = cv.calibration() == Calibration::Predictive || cv.selection() != Selection::Best;
     let scored = score_candidates(candidates, &plan, cv.halving(), data, roles, keep);
     let table: Vec<CvRow> = scored.iter().map(|r| r.row.clone()).collect();
     let Some(best) = winner_by(&table, candidates, cv.selection()) else {
@@ -795,23 +810,247 @@ pub fn fit_cross_validated(
                 .collect(),
         });
     };
-    let (model, mut summary) = candidates[best].1.fit(data, roles)?;
-    summary.covariance_calibration = calibrate(
-        cv.calibration(),
-        &table[best],
-        scored[best].held_out.as_deref(),
-        roles,
-        &mut summary.warnings,
-    )?;
+    let members = match cv.selection() {
+        Selection::Mean(k) => ranked(&table).into_iter().take(k).collect(),
+        _ => vec![best],
+    };
+    let (model, mut summary, mut table) = if members.len() > 1 {
+        fit_mean(cv, &members, &scored, table, data, roles)?
+    } else {
+        let (model, mut summary) = candidates[best].1.fit(data, roles)?;
+        summary.covariance_calibration = calibrate(
+            cv.calibration(),
+            &table[best],
+            scored[best].held_out.as_deref(),
+            roles,
+            &mut summary.warnings,
+        )?;
+        summary.chosen = Some(candidates[best].0.clone());
+        (model, summary, table)
+    };
     summary.fit_seconds = clock.elapsed().as_secs_f64();
-    summary.chosen = Some(candidates[best].0.clone());
-    for row in &table {
+    // The mean's own row (last) is its choice, not a candidate's error.
+    let own = usize::from(members.len() > 1);
+    let candidate_rows = table.len() - own;
+    for row in &table[..candidate_rows] {
         match &row.failure {
             Some(e) => summary.cv_failures.push((row.label.clone(), e.clone())),
             None if !row.abandoned => summary.cv_errors.push((row.label.clone(), row.mse)),
             None => {}
         }
     }
-    summary.cv_table = table;
+    if own == 1 {
+        let row = &table[candidate_rows];
+        summary.cv_errors.push((row.label.clone(), row.mse));
+    }
+    summary.cv_table = std::mem::take(&mut table);
     Ok((model, summary))
+}
+
+/// The candidates [`winner`] may choose from, best first (ties: the earlier).
+fn ranked(table: &[CvRow]) -> Vec<usize> {
+    let alive = |r: &&CvRow| r.failure.is_none() && !r.abandoned && r.mse.is_finite();
+    let Some(folds) = table.iter().filter(alive).map(|r| r.folds_scored).max() else {
+        return Vec::new();
+    };
+    let mut order: Vec<usize> = (0..table.len())
+        .filter(|&i| alive(&&table[i]) && table[i].folds_scored == folds)
+        .collect();
+    order.sort_by(|&a, &b| table[a].mse.total_cmp(&table[b].mse).then(a.cmp(&b)));
+    order
+}
+
+/// The label of the mean of `labels`.
+pub fn mean_label(labels: &[&str]) -> String {
+    format!("mean of {}: {}", labels.len(), labels.join(" + "))
+}
+
+/// [`Selection::Mean`]: the `members` (candidate indices, best first) refitted
+/// on all of `data` in parallel, equally weighted; the mean's held-out
+/// predictions from the members' ([`mean_held_out`]) give its row of the
+/// table (appended, labelled [`mean_label`]) and its calibration. The summary
+/// is the first member's, with every member's warnings.
+fn fit_mean(
+    cv: &CrossValidation,
+    members: &[usize],
+    scored: &[CvRowScored],
+    mut table: Vec<CvRow>,
+    data: &SequenceSet,
+    roles: &Roles,
+) -> Result<(Model, FitSummary, Vec<CvRow>)> {
+    let candidates = cv.candidates();
+    let weight = 1.0 / members.len() as f64;
+    let weights = vec![weight; members.len()];
+    let fits: Vec<(Model, FitSummary)> = members
+        .par_iter()
+        .map(|&c| candidates[c].1.fit(data, roles))
+        .collect::<Result<Vec<_>>>()?;
+    let labels: Vec<&str> = members.iter().map(|&c| candidates[c].0.as_str()).collect();
+    let label = mean_label(&labels);
+    let mut models = Vec::with_capacity(fits.len());
+    let mut summary = None;
+    let mut warnings = Vec::new();
+    for ((model, s), name) in fits.into_iter().zip(&labels) {
+        warnings.extend(s.warnings.iter().map(|w| format!("{name}: {w}")));
+        models.push((name.to_string(), model));
+        summary.get_or_insert(s);
+    }
+    let mut summary = summary.expect("a mean has members");
+    summary.warnings = warnings;
+    let model = Model::ensemble(models, &weights)?;
+    let held: Option<Vec<&[HeldOut]>> = members
+        .iter()
+        .map(|&c| scored[c].held_out.as_deref())
+        .collect();
+    let p = roles.scored().len();
+    let first = &table[members[0]];
+    let mut row = CvRow {
+        label: label.clone(),
+        folds_scored: first.folds_scored,
+        mse: f64::NAN,
+        mse_sd: f64::NAN,
+        fit_seconds: members.iter().map(|&c| table[c].fit_seconds).sum(),
+        abandoned: false,
+        coverage: None,
+        nlpd: None,
+        failure: None,
+    };
+    let mean_groups = match held.map(|h| mean_held_out(&h, &weights, p)) {
+        Some(Ok(m)) => Some(m),
+        Some(Err(e)) => {
+            summary.warnings.push(format!(
+                "the mean's held-out frames could not be scored ({e}): its row has no error and its covariance is not calibrated"
+            ));
+            None
+        }
+        None => {
+            summary.warnings.push(
+                "a member's held-out frames could not all be scored: the mean's row has no error and its covariance is not calibrated".into(),
+            );
+            None
+        }
+    };
+    if let Some((groups, log_density)) = &mean_groups {
+        let (mse, mse_sd) = fold_errors(groups, p);
+        let n: usize = groups.iter().map(|g| g.mahalanobis2.len()).sum();
+        let limit = chi_squared_quantile(COVERAGE_LEVEL, p)?;
+        let inside = groups
+            .iter()
+            .flat_map(|g| &g.mahalanobis2)
+            .filter(|&&v| v <= limit)
+            .count();
+        row.mse = mse;
+        row.mse_sd = mse_sd;
+        if n > 0 {
+            row.coverage = Some(inside as f64 / n as f64);
+            row.nlpd = Some(-log_density / n as f64);
+        }
+    }
+    summary.covariance_calibration = calibrate(
+        cv.calibration(),
+        &row,
+        mean_groups.as_ref().map(|(g, _)| g.as_slice()),
+        roles,
+        &mut summary.warnings,
+    )?;
+    summary.chosen = Some(label);
+    table.push(row);
+    Ok((model, summary, table))
+}
+
+/// The held-out frames of the weighted mean of members whose held-out frames
+/// are `members[i]` (the same demonstrations and frames, in the same order):
+/// per frame the residual `y − Σ w_i μ_i = Σ w_i r_i` and the moment-matched
+/// covariance `Σ w_i (Σ_i + (r_i − r)(r_i − r)ᵀ)` ([`crate::Predictor::ensemble`]'s
+/// formula; `μ_i − μ = −(r_i − r)`), scored; and the sum of the log densities.
+/// Errors when the members' frames do not line up or a covariance cannot be
+/// scored.
+fn mean_held_out(members: &[&[HeldOut]], weights: &[f64], p: usize) -> Result<(Vec<HeldOut>, f64)> {
+    let misaligned = |what: &str| TscError::InvalidSetting {
+        name: "candidates",
+        reason: format!("the members' held-out frames differ in {what}"),
+    };
+    let first = members[0];
+    let mut out = Vec::with_capacity(first.len());
+    let mut log_density = 0.0;
+    let (mut residual, mut covariance, mut scratch) =
+        (vec![0.0; p], vec![0.0; p * p], vec![0.0; p * (p + 1)]);
+    for (g, demonstration) in first.iter().enumerate() {
+        let frames = demonstration.mahalanobis2.len();
+        for m in members {
+            let other = m.get(g).ok_or_else(|| misaligned("demonstrations"))?;
+            if other.fold != demonstration.fold
+                || other.mahalanobis2.len() != frames
+                || other.residuals.len() != frames * p
+                || other.covariances.len() != frames * p * p
+            {
+                return Err(misaligned("frames"));
+            }
+        }
+        let mut held = HeldOut {
+            fold: demonstration.fold,
+            ..HeldOut::default()
+        };
+        for t in 0..frames {
+            residual.fill(0.0);
+            for (m, w) in members.iter().zip(weights) {
+                let r = &m[g].residuals[t * p..(t + 1) * p];
+                residual.iter_mut().zip(r).for_each(|(a, b)| *a += w * b);
+            }
+            covariance.fill(0.0);
+            for (m, w) in members.iter().zip(weights) {
+                let r = &m[g].residuals[t * p..(t + 1) * p];
+                let c = &m[g].covariances[t * p * p..(t + 1) * p * p];
+                for i in 0..p {
+                    for j in 0..p {
+                        covariance[i * p + j] +=
+                            w * (c[i * p + j] + (r[i] - residual[i]) * (r[j] - residual[j]));
+                    }
+                }
+            }
+            let s = score_gaussian(&residual, &covariance, &mut scratch)?;
+            held.mahalanobis2.push(s.mahalanobis2);
+            held.residuals.extend_from_slice(&residual);
+            held.covariances.extend_from_slice(&covariance);
+            log_density += s.log_density;
+        }
+        out.push(held);
+    }
+    Ok((out, log_density))
+}
+
+/// The pooled squared error per frame of held-out frames, and the population
+/// standard deviation over folds of the per-fold error (as a candidate's row).
+fn fold_errors(groups: &[HeldOut], p: usize) -> (f64, f64) {
+    let mut per_fold: Vec<(usize, f64, usize)> = Vec::new();
+    for g in groups {
+        let se: f64 = g.residuals.iter().map(|v| v * v).sum();
+        let frames = g.residuals.len() / p.max(1);
+        match per_fold.iter_mut().find(|(f, _, _)| *f == g.fold) {
+            Some((_, s, n)) => {
+                *s += se;
+                *n += frames;
+            }
+            None => per_fold.push((g.fold, se, frames)),
+        }
+    }
+    let (se, frames) = per_fold
+        .iter()
+        .fold((0.0, 0), |(a, n), (_, s, k)| (a + s, n + k));
+    let errors: Vec<f64> = per_fold
+        .iter()
+        .filter(|(_, _, n)| *n > 0)
+        .map(|(_, s, n)| s / *n as f64)
+        .collect();
+    let mean = errors.iter().sum::<f64>() / errors.len().max(1) as f64;
+    let sd = (errors.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / errors.len().max(1) as f64)
+        .sqrt();
+    (
+        if frames == 0 {
+            f64::NAN
+        } else {
+            se / frames as f64
+        },
+        sd,
+    )
 }

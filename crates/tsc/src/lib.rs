@@ -103,7 +103,7 @@ pub use krishnan::{
 pub use method::{
     Calibration, CrossValidation, GmmSettings, GmmSettingsBuilder, Method, Selection,
 };
-pub use model::Model;
+pub use model::{EnsembleMember, Model};
 pub use predictor::{human_frames, OnlinePredictor, Predictor};
 pub use preset::{
     Preset, PresetOptions, PresetOptionsBuilder, AUTO_MIN_STATES, DEFAULT_COMPOSITION,

@@ -322,6 +322,12 @@ pub enum Selection {
     /// one unit: a grid mixing `reg-pos` and `reg-rel` compares them as if
     /// alike), then the fewest states, then the earlier.
     OneStandardError,
+    /// Not one candidate: the equally weighted mean of the `K ≥ 1` with the
+    /// lowest cross-validated errors (among those [`Selection::Best`] may
+    /// choose from), each refitted on all the data, a [`crate::Model::Ensemble`]
+    /// (model averaging, "stacking" with equal weights: Breiman 1996;
+    /// *ESL* §8.8). `K = 1` is [`Selection::Best`].
+    Mean(usize),
 }
 
 impl Selection {
@@ -336,6 +342,7 @@ impl fmt::Display for Selection {
         f.write_str(match self {
             Selection::Best => "best",
             Selection::OneStandardError => "one-se",
+            Selection::Mean(k) => return write!(f, "mean of {k}"),
         })
     }
 }
@@ -379,6 +386,12 @@ impl TryFrom<CrossValidationRaw> for CrossValidation {
         cv.halving = r.halving;
         cv.fold_seed = r.fold_seed;
         cv.calibration = r.calibration;
+        if r.selection == Selection::Mean(0) {
+            return Err(TscError::InvalidSetting {
+                name: "selection",
+                reason: "the mean of 0 candidates: K must be at least 1".into(),
+            });
+        }
         cv.selection = r.selection;
         Ok(cv)
     }

@@ -45,6 +45,23 @@ pub enum Model {
         /// The GMM plus kept transition clusters.
         mixture: Gmm<AnyEmission>,
     },
+    /// The weighted mean of several models' predictions (`auto:ensemble=K`):
+    /// see [`EnsembleMember`] and [`Predictor`]. Its segmentation, evidence
+    /// and states are its first member's (the best ranked).
+    Ensemble(Vec<EnsembleMember>),
+}
+
+/// One model of an ensemble: its label (the method that made it), its weight
+/// (`w_i > 0`, the weights sum to 1) and the fitted model (not itself an
+/// ensemble).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct EnsembleMember {
+    /// The method specification that made it (`hmm:states=7,reg-rel=0.03`).
+    pub label: String,
+    /// Its weight in the mean.
+    pub weight: f64,
+    /// The fitted model.
+    pub model: Model,
 }
 
 /// The serialised form of [`Model`], before the parts are checked against each other.
@@ -62,6 +79,9 @@ enum ModelRaw {
         tsc: KrishnanTsc,
         mixture: Gmm<AnyEmission>,
     },
+    Ensemble {
+        members: Vec<EnsembleMember>,
+    },
 }
 
 impl TryFrom<ModelRaw> for Model {
@@ -73,6 +93,7 @@ impl TryFrom<ModelRaw> for Model {
             ModelRaw::TscHmm { model, window } => Model::TscHmm { model, window },
             ModelRaw::Gmm(g) => Model::Gmm(g),
             ModelRaw::GmmTsc { tsc, mixture } => Model::GmmTsc { tsc, mixture },
+            ModelRaw::Ensemble { members } => Model::Ensemble(members),
         };
         m.validate()?;
         Ok(m)
@@ -87,6 +108,7 @@ impl From<Model> for ModelRaw {
             Model::TscHmm { model, window } => ModelRaw::TscHmm { model, window },
             Model::Gmm(g) => ModelRaw::Gmm(g),
             Model::GmmTsc { tsc, mixture } => ModelRaw::GmmTsc { tsc, mixture },
+            Model::Ensemble(members) => ModelRaw::Ensemble { members },
         }
     }
 }
@@ -99,26 +121,102 @@ impl Model {
             Model::Hsmm(h) => h.dim(),
             Model::TscHmm { model, .. } => model.base().dim(),
             Model::Gmm(g) | Model::GmmTsc { mixture: g, .. } => g.dim(),
+            Model::Ensemble(members) => members.first().map_or(0, |m| m.model.dim()),
         }
     }
 
-    /// Total number of states (components) of the model that predicts.
+    /// Total number of states (components) of the model that predicts (an
+    /// ensemble: summed over its members).
     pub fn n_states(&self) -> usize {
         match self {
             Model::Hmm(h) => h.n_states(),
             Model::Hsmm(h) => h.n_states(),
             Model::TscHmm { model, .. } => model.n_states(),
             Model::Gmm(g) | Model::GmmTsc { mixture: g, .. } => g.n_components(),
+            Model::Ensemble(members) => members.iter().map(|m| m.model.n_states()).sum(),
         }
+    }
+
+    /// The model whose states, segmentation and evidence stand for this one:
+    /// itself, or an ensemble's first member (the best ranked).
+    pub fn representative(&self) -> &Model {
+        match self {
+            Model::Ensemble(members) if !members.is_empty() => &members[0].model,
+            m => m,
+        }
+    }
+
+    /// An ensemble of `members` (label, model) with weights `weights`,
+    /// checked ([`Model::validate`]).
+    pub fn ensemble(members: Vec<(String, Model)>, weights: &[f64]) -> Result<Model> {
+        if members.len() != weights.len() {
+            return Err(TscError::InvalidModel {
+                model: "ensemble",
+                reason: format!("{} members and {} weights", members.len(), weights.len()),
+            });
+        }
+        let m = Model::Ensemble(
+            members
+                .into_iter()
+                .zip(weights)
+                .map(|((label, model), &weight)| EnsembleMember {
+                    label,
+                    weight,
+                    model,
+                })
+                .collect(),
+        );
+        m.validate()?;
+        Ok(m)
     }
 
     /// Checks that the parts of a model built from its variants agree: the
     /// predicting mixture of `gmm-tsc` has the frame dimension of its TSC and
     /// more components than the kept clusters. (A [`TscHmm`] and a
     /// [`KrishnanTsc`] check their own parts when made or read.)
+    ///
+    /// An ensemble has at least one member, none of them an ensemble, all of
+    /// one frame dimension, with finite positive weights summing to 1 (to
+    /// `1e-9`).
     pub fn validate(&self) -> Result<()> {
         match self {
             Model::Hmm(_) | Model::Hsmm(_) | Model::Gmm(_) | Model::TscHmm { .. } => Ok(()),
+            Model::Ensemble(members) => {
+                let bad = |reason: String| {
+                    Err(TscError::InvalidModel {
+                        model: "ensemble",
+                        reason,
+                    })
+                };
+                let Some(first) = members.first() else {
+                    return bad("it has no member".into());
+                };
+                let total: f64 = members.iter().map(|m| m.weight).sum();
+                for (i, m) in members.iter().enumerate() {
+                    if matches!(m.model, Model::Ensemble(_)) {
+                        return bad(format!("member {i} ({}) is itself an ensemble", m.label));
+                    }
+                    if m.model.dim() != first.model.dim() {
+                        return bad(format!(
+                            "member {i} ({}) has frames of dimension {}, member 0 of {}",
+                            m.label,
+                            m.model.dim(),
+                            first.model.dim()
+                        ));
+                    }
+                    if !(m.weight.is_finite() && m.weight > 0.0) {
+                        return bad(format!(
+                            "member {i} ({}) has weight {} (must be finite and > 0)",
+                            m.label, m.weight
+                        ));
+                    }
+                    m.model.validate()?;
+                }
+                if (total - 1.0).abs() > 1e-9 {
+                    return bad(format!("the weights sum to {total}, not 1"));
+                }
+                Ok(())
+            }
             Model::GmmTsc { tsc, mixture } => {
                 if mixture.dim() != tsc.transition_mixture().dim()
                     || mixture.n_components() <= tsc.kept().len()
@@ -158,6 +256,12 @@ impl Model {
             Model::Gmm(g) | Model::GmmTsc { mixture: g, .. } => {
                 Predictor::gmm(GmmRegression::new(g, roles.human(), roles.robot())?)
             }
+            Model::Ensemble(members) => Predictor::ensemble(
+                members
+                    .iter()
+                    .map(|m| Ok((m.weight, m.model.predictor(roles)?)))
+                    .collect::<Result<Vec<_>>>()?,
+            )?,
         })
     }
 
@@ -174,6 +278,7 @@ impl Model {
     ///   model's window, and each run's clusters are `λ_T`'s Viterbi states.
     /// * `gmm-tsc` uses Krishnan's label changes and kept clusters; `gmm`
     ///   flags label changes.
+    /// * An ensemble segments by its first member (the best ranked).
     pub fn segment(&self, seq: Frames<'_>, roles: &Roles) -> Result<Segmentation> {
         roles.check(seq.dim())?;
         let one = SequenceSet::single(seq.as_slice(), seq.dim())?;
@@ -249,6 +354,7 @@ impl Model {
                 })
             }
             Model::GmmTsc { tsc, .. } => tsc.segment(seq),
+            Model::Ensemble(_) => self.representative().segment(seq, roles),
         }
     }
 }

@@ -44,6 +44,8 @@ enum PredictorKind {
     Gmm(GmmRegression),
     /// HSMM-GMR (boxed: the variants stay of similar size).
     Hsmm(Box<HsmmRegression>),
+    /// The weighted mean of members' predictions ([`Predictor::ensemble`]).
+    Ensemble(Vec<(f64, Predictor)>),
 }
 
 impl Predictor {
@@ -143,12 +145,50 @@ impl Predictor {
         Predictor::of(PredictorKind::Gmm(r))
     }
 
+    /// The weighted mean of `members` (weight `w_i`, predictor), as a mixture
+    /// of their predictive Gaussians matched by its first two moments:
+    ///
+    /// `μ_t = Σ_i w_i μ_{i,t}`, `Σ_t = Σ_i w_i (Σ_{i,t} + (μ_{i,t} − μ_t)(μ_{i,t} − μ_t)ᵀ)`
+    /// (frame by frame), each member's `Σ_{i,t}` as that member
+    /// returns it. The evidence of a frame (log predictive density, rejected
+    /// frames, the weights or belief) is the first member's. Errors when
+    /// there is no member, the members predict different numbers of dims, or
+    /// a weight is not finite and positive or they do not sum to 1 (to
+    /// `1e-9`).
+    pub fn ensemble(members: Vec<(f64, Predictor)>) -> Result<Self> {
+        let bad = |reason: String| crate::error::TscError::InvalidModel {
+            model: "ensemble",
+            reason,
+        };
+        let Some((_, first)) = members.first() else {
+            return Err(bad("it has no member".into()));
+        };
+        let o = first.n_out();
+        for (i, (w, p)) in members.iter().enumerate() {
+            if p.n_out() != o {
+                return Err(bad(format!(
+                    "member {i} predicts {} dims, member 0 {o}",
+                    p.n_out()
+                )));
+            }
+            if !(w.is_finite() && *w > 0.0) {
+                return Err(bad(format!("member {i} has weight {w}")));
+            }
+        }
+        let total: f64 = members.iter().map(|(w, _)| w).sum();
+        if (total - 1.0).abs() > 1e-9 {
+            return Err(bad(format!("the weights sum to {total}, not 1")));
+        }
+        Ok(Predictor::of(PredictorKind::Ensemble(members)))
+    }
+
     /// Number of predicted dims.
     pub fn n_out(&self) -> usize {
         match &self.kind {
             PredictorKind::Hmm(r) | PredictorKind::Gated { base: r, .. } => r.regression().n_out(),
             PredictorKind::Gmm(r) => r.regression().n_out(),
             PredictorKind::Hsmm(r) => r.regression().n_out(),
+            PredictorKind::Ensemble(m) => m.first().map_or(0, |(_, p)| p.n_out()),
         }
     }
 
@@ -176,6 +216,14 @@ impl Predictor {
             PredictorKind::Hmm(r) => Ok(r.predict(human, with_covariance)?),
             PredictorKind::Gmm(r) => Ok(r.predict(human, with_covariance)?),
             PredictorKind::Hsmm(r) => Ok(r.predict(human, with_covariance)?),
+            PredictorKind::Ensemble(members) => {
+                let predictions = members
+                    .iter()
+                    .map(|(_, p)| p.predict(human, with_covariance))
+                    .collect::<Result<Vec<_>>>()?;
+                let weights: Vec<f64> = members.iter().map(|(w, _)| *w).collect();
+                Ok(combine_predictions(&weights, predictions))
+            }
             PredictorKind::Gated { base, transition } => {
                 let mut a = base.predict(human, with_covariance)?;
                 let b = transition.predict(human, with_covariance)?;
@@ -211,6 +259,11 @@ impl Predictor {
             PredictorKind::Gated { base, transition } => OnlineKind::Gated {
                 base: base.online(),
                 transition: Box::new(transition.online()),
+                mean: vec![0.0; o],
+                covariance: vec![0.0; o * o],
+            },
+            PredictorKind::Ensemble(members) => OnlineKind::Ensemble {
+                members: members.iter().map(|(w, p)| (*w, p.online())).collect(),
                 mean: vec![0.0; o],
                 covariance: vec![0.0; o * o],
             },
@@ -270,6 +323,13 @@ enum OnlineKind {
         mean: Vec<f64>,
         covariance: Vec<f64>,
         scratch: Vec<f64>,
+    },
+    /// Every member's online predictor and their combination of the last
+    /// step ([`Predictor::ensemble`]).
+    Ensemble {
+        members: Vec<(f64, OnlinePredictor)>,
+        mean: Vec<f64>,
+        covariance: Vec<f64>,
     },
 }
 
@@ -358,6 +418,23 @@ impl OnlinePredictor {
                 with_covariance.then_some(&mut covariance[..]),
                 scratch,
             )?,
+            OnlineKind::Ensemble {
+                members,
+                mean,
+                covariance,
+            } => {
+                let mut evidence = None;
+                for (_, m) in members.iter_mut() {
+                    let e = m.step_with_evidence(human, with_covariance)?;
+                    evidence.get_or_insert(e);
+                }
+                combine_step(
+                    members,
+                    mean,
+                    with_covariance.then_some(&mut covariance[..]),
+                );
+                evidence.unwrap_or(FrameEvidence::NONE)
+            }
         })
     }
 
@@ -366,7 +443,9 @@ impl OnlinePredictor {
         match &self.kind {
             OnlineKind::Hmm(r) => r.mean(),
             OnlineKind::Hsmm(r) => r.mean(),
-            OnlineKind::Gated { mean, .. } | OnlineKind::Gmm { mean, .. } => mean,
+            OnlineKind::Gated { mean, .. }
+            | OnlineKind::Gmm { mean, .. }
+            | OnlineKind::Ensemble { mean, .. } => mean,
         }
     }
 
@@ -397,6 +476,7 @@ impl OnlinePredictor {
             OnlineKind::Hmm(r) | OnlineKind::Gated { base: r, .. } => r.belief(),
             OnlineKind::Hsmm(r) => r.belief(),
             OnlineKind::Gmm { weights, .. } => weights,
+            OnlineKind::Ensemble { members, .. } => members[0].1.belief(),
         }
     }
 
@@ -408,6 +488,7 @@ impl OnlinePredictor {
             OnlineKind::Hmm(r) | OnlineKind::Gated { base: r, .. } => Some(r.log_likelihood()),
             OnlineKind::Hsmm(r) => Some(r.log_likelihood()),
             OnlineKind::Gmm { .. } => None,
+            OnlineKind::Ensemble { members, .. } => members[0].1.log_likelihood(),
         }
     }
 
@@ -423,6 +504,9 @@ impl OnlinePredictor {
                 transition.reset();
             }
             OnlineKind::Gmm { .. } => {}
+            OnlineKind::Ensemble { members, .. } => {
+                members.iter_mut().for_each(|(_, m)| m.reset());
+            }
         }
     }
 }
@@ -432,7 +516,83 @@ fn kind_covariance(kind: &OnlineKind) -> &[f64] {
     match kind {
         OnlineKind::Hmm(r) => r.covariance(),
         OnlineKind::Hsmm(r) => r.covariance(),
-        OnlineKind::Gated { covariance, .. } | OnlineKind::Gmm { covariance, .. } => covariance,
+        OnlineKind::Gated { covariance, .. }
+        | OnlineKind::Gmm { covariance, .. }
+        | OnlineKind::Ensemble { covariance, .. } => covariance,
+    }
+}
+
+/// The moment-matched mixture of members' predictions of a sequence
+/// ([`Predictor::ensemble`]'s formula, frame by frame); the evidence
+/// (weights, log predictive densities, rejected frames) is the first's.
+fn combine_predictions(weights: &[f64], predictions: Vec<Prediction>) -> Prediction {
+    let mut it = predictions.into_iter();
+    let mut out = it
+        .next()
+        .expect("an ensemble has a member (checked when built)");
+    let rest: Vec<Prediction> = it.collect();
+    let o = out.n_out;
+    let first = std::mem::take(&mut out.mean);
+    let all: Vec<&Prediction> = std::iter::once(&out).chain(&rest).collect();
+    let means: Vec<&[f64]> = std::iter::once(first.as_slice())
+        .chain(rest.iter().map(|p| p.mean.as_slice()))
+        .collect();
+    let frames = first.len() / o.max(1);
+    let mut mean = vec![0.0; first.len()];
+    for (w, m) in weights.iter().zip(&means) {
+        mean.iter_mut().zip(m.iter()).for_each(|(a, b)| *a += w * b);
+    }
+    let covariance = all
+        .iter()
+        .map(|p| p.covariance.as_deref())
+        .collect::<Option<Vec<_>>>()
+        .map(|covs| {
+            let mut c = vec![0.0; frames * o * o];
+            for t in 0..frames {
+                let mu = &mean[t * o..(t + 1) * o];
+                let ct = &mut c[t * o * o..(t + 1) * o * o];
+                for ((w, m), s) in weights.iter().zip(&means).zip(&covs) {
+                    add_moment(
+                        ct,
+                        *w,
+                        &m[t * o..(t + 1) * o],
+                        mu,
+                        &s[t * o * o..(t + 1) * o * o],
+                    );
+                }
+            }
+            c
+        });
+    out.mean = mean;
+    out.covariance = covariance;
+    out
+}
+
+/// `c += w (Σ + (m − μ)(m − μ)ᵀ)`, `O × O` row-major.
+fn add_moment(c: &mut [f64], w: f64, m: &[f64], mu: &[f64], sigma: &[f64]) {
+    let o = m.len();
+    for i in 0..o {
+        for j in 0..o {
+            c[i * o + j] += w * (sigma[i * o + j] + (m[i] - mu[i]) * (m[j] - mu[j]));
+        }
+    }
+}
+
+/// One online step of [`combine_predictions`], into preallocated buffers.
+fn combine_step(
+    members: &[(f64, OnlinePredictor)],
+    mean: &mut [f64],
+    covariance: Option<&mut [f64]>,
+) {
+    mean.fill(0.0);
+    for (w, m) in members {
+        mean.iter_mut().zip(m.mean()).for_each(|(a, b)| *a += w * b);
+    }
+    if let Some(c) = covariance {
+        c.fill(0.0);
+        for (w, m) in members {
+            add_moment(c, *w, m.mean(), mean, m.covariance());
+        }
     }
 }
 

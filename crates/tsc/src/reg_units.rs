@@ -249,6 +249,18 @@ pub fn scale_model(model: &Model, s: &[f64]) -> Result<Model> {
             window: *window,
         },
         Model::Gmm(g) => Model::Gmm(gmm(g, s)?),
+        Model::Ensemble(members) => Model::Ensemble(
+            members
+                .iter()
+                .map(|m| {
+                    Ok(crate::model::EnsembleMember {
+                        label: m.label.clone(),
+                        weight: m.weight,
+                        model: scale_model(&m.model, s)?,
+                    })
+                })
+                .collect::<Result<Vec<_>>>()?,
+        ),
         Model::GmmTsc { tsc, mixture } => {
             let stacked: Vec<f64> = s
                 .iter()

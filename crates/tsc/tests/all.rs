@@ -5,6 +5,7 @@
 mod auto;
 mod calibration;
 mod emissions;
+mod ensemble;
 mod gmeans_states;
 mod hsmm_preset;
 mod model_files_v1;

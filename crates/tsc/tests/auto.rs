@@ -81,6 +81,7 @@ fn auto_chooses_an_hmm_when_the_robot_depends_on_the_phase() {
     let s = AutoSettings::builder()
         .grid(Grid::Small)
         .families(["hmm", "gmm"])
+        .ensemble(1)
         .build()
         .unwrap();
     let (model, summary) = auto(&s).fit(&data, &roles()).unwrap();
@@ -231,7 +232,11 @@ fn successive_halving_abandons_the_worst_and_says_so() {
     assert!(Halving::new(2, 1, 1).is_err());
 
     let data = set(&phased(10, 7));
-    let s = AutoSettings::builder().grid(Grid::Small).build().unwrap();
+    let s = AutoSettings::builder()
+        .grid(Grid::Small)
+        .ensemble(1)
+        .build()
+        .unwrap();
     let (_, summary) = auto(&s).fit(&data, &roles()).unwrap();
     let t = &summary.cv_table;
     assert_eq!(t.len(), SMALL);
@@ -278,7 +283,7 @@ fn keys_are_validated_and_errors_name_them() {
     let d = AutoSettings::default();
     assert_eq!(
         (d.selection(), d.calibration()),
-        (Selection::Best, Calibration::Predictive)
+        (Selection::Mean(5), Calibration::Predictive)
     );
     assert_eq!(
         set_key("choose", "one-se").unwrap().selection(),
@@ -303,7 +308,12 @@ fn keys_are_validated_and_errors_name_them() {
     let back: AutoSettings =
         serde_json::from_str(&serde_json::to_string(&one_se).unwrap()).unwrap();
     assert_eq!(back, one_se);
-    assert!(!serde_json::to_string(&d).unwrap().contains("choose"));
+    // The single best is not written (the files of before); the default mean is.
+    let best = set_key("ensemble", "1").unwrap();
+    assert!(!serde_json::to_string(&best).unwrap().contains("choose"));
+    assert!(serde_json::to_string(&d)
+        .unwrap()
+        .contains(r#""choose":{"mean":5}"#));
     let ok = set_key("families", "hmm+tsc-hmm").unwrap();
     assert_eq!(ok.families().unwrap(), ["hmm", "tsc-hmm"]);
     let cands = ok.candidates(&PresetOptions::default()).unwrap();

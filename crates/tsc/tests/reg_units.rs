@@ -397,21 +397,27 @@ fn the_unit_round_trips_and_old_settings_read_as_absolute() {
         );
         let back: Method = serde_json::from_str(&text).unwrap();
         assert_eq!(back, m, "{preset}");
-        // Absolute settings do not write the unit: the files of before.
+        // Absolute settings do not write the unit: the files of before
+        // (`auto`'s default grid is unit-free: its candidates carry their own).
         let a = Method::preset(preset, &options(0.05, RegUnits::Absolute)).unwrap();
         assert!(
-            !serde_json::to_string(&a).unwrap().contains("reg_units"),
+            preset == Preset::Auto || !serde_json::to_string(&a).unwrap().contains("reg_units"),
             "{preset}"
         );
         match back.regularisation() {
             Some((_, units, _)) => assert_eq!(units, RegUnits::Relative, "{preset}"),
             None => {
-                // Cross-validated: every candidate relative.
+                // Cross-validated (`auto`'s unit-free grid): every candidate
+                // relative to the variances, its own or its position's.
                 let Method::CrossValidated(cv) = &back else {
                     unreachable!()
                 };
                 for (label, c) in cv.candidates() {
-                    assert_eq!(c.regularisation().unwrap().1, RegUnits::Relative, "{label}");
+                    let units = c.regularisation().unwrap().1;
+                    assert!(
+                        matches!(units, RegUnits::Relative | RegUnits::Positions),
+                        "{label}: {units:?}"
+                    );
                 }
             }
         }

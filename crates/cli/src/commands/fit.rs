@@ -64,12 +64,7 @@ impl FitReport {
             frames,
             features: mf.layout.features.clone(),
             standardised: mf.standardisation.is_some(),
-            regularisation_unit: match fitted_method(mf).regularisation() {
-                _ if mf.fit.regularisation_per_feature.is_empty() => "absolute",
-                Some((_, RegUnits::Positions, _)) => "positions",
-                _ => "relative",
-            }
-            .into(),
+            regularisation_unit: regularisation_unit(mf),
             fit: mf.fit.clone(),
             model_file,
             notes: Vec::new(),
@@ -79,16 +74,45 @@ impl FitReport {
     }
 }
 
-/// The method whose model the file holds: `auto`'s chosen candidate, or the
-/// file's method.
-fn fitted_method(mf: &ModelFile) -> &Method {
-    match (&mf.method.settings, &mf.fit.chosen) {
-        (Method::CrossValidated(cv), Some(chosen)) => cv
+/// The unit of the regularisation of the model the file holds (`absolute`,
+/// `relative`, `positions`); a mean whose members differ: theirs joined by
+/// ` + ` in the members' order, each once.
+fn regularisation_unit(mf: &ModelFile) -> String {
+    let unit = |m: &Method| match m.regularisation() {
+        Some((_, RegUnits::Positions, _)) => "positions",
+        Some((_, RegUnits::Relative, _)) => "relative",
+        _ => "absolute",
+    };
+    let labels: Vec<&str> = match &mf.model {
+        Model::Ensemble(members) => members.iter().map(|m| m.label.as_str()).collect(),
+        _ => mf.fit.chosen.as_deref().into_iter().collect(),
+    };
+    let mut units: Vec<&str> = Vec::new();
+    for l in &labels {
+        let u = unit(candidate(mf, l));
+        if !units.contains(&u) {
+            units.push(u);
+        }
+    }
+    if units.is_empty() {
+        units.push(match mf.method.settings.regularisation() {
+            _ if mf.fit.regularisation_per_feature.is_empty() => "absolute",
+            Some((_, RegUnits::Positions, _)) => "positions",
+            _ => "relative",
+        });
+    }
+    units.join(" + ")
+}
+
+/// `auto`'s candidate of this label, or the file's method.
+fn candidate<'a>(mf: &'a ModelFile, label: &str) -> &'a Method {
+    match &mf.method.settings {
+        Method::CrossValidated(cv) => cv
             .candidates()
             .iter()
-            .find(|(label, _)| label == chosen)
+            .find(|(l, _)| l == label)
             .map_or(&mf.method.settings, |(_, m)| m),
-        (m, _) => m,
+        m => m,
     }
 }
 
@@ -99,6 +123,16 @@ pub fn emission_name(model: &Model) -> String {
         Model::Hsmm(h) => h.emission().kind().to_string(),
         Model::TscHmm { model, .. } => model.base().emission().kind().to_string(),
         Model::Gmm(g) | Model::GmmTsc { mixture: g, .. } => g.components().kind().to_string(),
+        Model::Ensemble(members) => {
+            let mut names: Vec<String> = Vec::new();
+            for m in members {
+                let name = emission_name(&m.model);
+                if !names.contains(&name) {
+                    names.push(name);
+                }
+            }
+            names.join(" + ")
+        }
     }
 }
 
@@ -355,6 +389,20 @@ pub fn notes(fit: &FitSummary) -> Vec<String> {
 /// The regularisation with its unit, the same words in every format:
 /// `1e-2 × each feature's variance (…)` or `1e-2 data units² on every covariance diagonal`.
 fn reg_text(r: &FitReport) -> String {
+    let text = reg_text_of_one(r);
+    if r.fit
+        .chosen
+        .as_deref()
+        .is_some_and(|c| c.starts_with("mean of "))
+    {
+        // A mean's summary is its first member's; each member's `reg` is in its label.
+        format!("{text}, the first member's (each member's is in its label)")
+    } else {
+        text
+    }
+}
+
+fn reg_text_of_one(r: &FitReport) -> String {
     let f = &r.fit;
     if f.regularisation_per_feature.is_empty() {
         format!(
@@ -371,7 +419,7 @@ fn reg_text(r: &FitReport) -> String {
             .regularisation_per_feature
             .iter()
             .fold((f64::INFINITY, 0.0f64), |(a, b), v| (a.min(*v), b.max(*v)));
-        let of_what = if r.regularisation_unit == "positions" {
+        let of_what = if r.regularisation_unit.starts_with("positions") {
             "each position's variance (a velocity: its position's)"
         } else {
             "each feature's variance"

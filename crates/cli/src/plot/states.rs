@@ -81,10 +81,11 @@ fn gaussians(
 /// The Gaussians of the model that predicts, projected: an HMM's states; a union
 /// TSC-HMM's re-estimated states, `λ_T`'s marked as transition states; a gated
 /// TSC-HMM's `λ` and `λ_T` states; a GMM's components; gmm-tsc's predicting mixture,
-/// its last components (the kept clusters, re-trained) marked as transition clusters.
+/// its last components (the kept clusters, re-trained) marked as transition clusters;
+/// an ensemble's first member's (the best ranked).
 pub fn model_ellipses_projected(mf: &ModelFile, proj: &Projection) -> Vec<Ellipse> {
     let all = |n: usize| (0..n).collect::<Vec<_>>();
-    match &mf.model {
+    match mf.model.representative() {
         Model::Hmm(h) => gaussians(h.emission(), &all(h.n_states()), usize::MAX, proj, mf, ""),
         Model::Hsmm(h) => gaussians(h.emission(), &all(h.n_states()), usize::MAX, proj, mf, ""),
         Model::TscHmm { model, .. } => {
@@ -133,6 +134,8 @@ pub fn model_ellipses_projected(mf: &ModelFile, proj: &Projection) -> Vec<Ellips
                 "transition cluster",
             )
         }
+        // A validated ensemble has members, none of them an ensemble.
+        Model::Ensemble(_) => Vec::new(),
     }
 }
 
