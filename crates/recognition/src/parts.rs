@@ -39,7 +39,12 @@ pub fn action_hmm(model: &Model) -> Result<Hmm<Gaussian>> {
         Model::TscHmm { model, .. } => gaussian_hmm(model.union().unwrap_or(model.base())),
         Model::Gmm(g) | Model::GmmTsc { mixture: g, .. } => mixture_as_hmm(g),
         // The best-ranked member stands for the mean (its states and filter).
-        Model::Ensemble(_) => action_hmm(model.representative()),
+        Model::Ensemble(members) => match members.first() {
+            Some(m) => action_hmm(&m.model),
+            None => Err(RecognitionError::InvalidLibrary(
+                "an ensemble model has no member".into(),
+            )),
+        },
         Model::Hsmm(_) => Err(RecognitionError::InvalidLibrary(
             "an hsmm model has explicit durations: a library of interactions composes HMMs \
              (fit the action with hmm or a tsc-hmm preset)"

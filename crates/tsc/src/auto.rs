@@ -230,6 +230,7 @@ pub enum Grid {
     Mixed,
     /// [`unit_free_grid`]: [`POSITIONS_GRID`] and [`RELATIVE_GRID`].
     #[default]
+    #[serde(rename = "unit-free")]
     UnitFree,
 }
 
@@ -329,7 +330,8 @@ pub struct AutoSettingsBuilder(AutoSettings, ChoiceKeys);
 /// both together are refused rather than one silently ignored.
 #[derive(Debug, Clone, Copy, Default)]
 struct ChoiceKeys {
-    one_se: bool,
+    /// `choose=best` or `choose=one-se`, if given.
+    one: Option<Selection>,
     ensemble: Option<usize>,
 }
 
@@ -378,19 +380,19 @@ impl AutoSettingsBuilder {
     }
     /// Validates the settings: at least 2 folds, every family one of the grid's.
     pub fn build(self) -> Result<AutoSettings> {
-        if let (true, Some(k)) = (self.1.one_se, self.1.ensemble) {
+        if let (Some(one), Some(k)) = (self.1.one, self.1.ensemble) {
             if k > 1 {
                 return Err(TscError::InvalidSetting {
                     name: "choose",
                     reason: format!(
-                        "choose=one-se picks one candidate and ensemble={k} averages {k}: give one of them (ensemble=1 with one-se)"
+                        "choose={one} picks one candidate and ensemble={k} averages {k}: give one of them"
                     ),
                 });
             }
         }
         let mut s = self.0;
-        if self.1.one_se {
-            s.choose = Selection::OneStandardError;
+        if let Some(one) = self.1.one {
+            s.choose = one;
         }
         if s.choose == Selection::Mean(0) {
             return Err(TscError::InvalidSetting {
@@ -501,10 +503,14 @@ impl AutoSettings {
                 _ => return Err(bad("halving", format!("expected on or off, got `{value}`"))),
             },
             "choose" => match value {
-                "best" => b.ensemble(1),
-                "one-se" => {
-                    let mut b = b.choose(Selection::OneStandardError);
-                    b.1.one_se = true;
+                "best" | "one-se" => {
+                    let one = if value == "best" {
+                        Selection::Best
+                    } else {
+                        Selection::OneStandardError
+                    };
+                    let mut b = b.choose(one);
+                    b.1.one = Some(one);
                     b
                 }
                 _ => {

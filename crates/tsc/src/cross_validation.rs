@@ -778,14 +778,21 @@ fn shaped(groups: &[HeldOut], p: usize) -> Result<Shaped> {
 }
 
 /// Fits a [`Method::CrossValidated`]: the table on `data`, then the winner
-/// refitted on all of `data`; the summary is the winner's, with the choice,
-/// the table and the whole time.
+/// (or the mean's members, [`Selection::Mean`]) refitted on all of `data`;
+/// the summary is the winner's (the mean's first member's), with the choice,
+/// the table and the whole time. Errors for [`Selection::Mean`]`(0)`.
 pub fn fit_cross_validated(
     cv: &CrossValidation,
     data: &SequenceSet,
     roles: &Roles,
 ) -> Result<(Model, FitSummary)> {
     let clock = Instant::now();
+    if cv.selection() == Selection::Mean(0) {
+        return Err(TscError::InvalidSetting {
+            name: "selection",
+            reason: "the mean of 0 candidates: K must be at least 1".into(),
+        });
+    }
     let candidates = cv.candidates();
     let plan = FoldPlan::new(data.len(), cv.folds(), cv.fold_seed())?;
     // Residuals and covariances are kept only where the rule or the mean reads them.
@@ -879,24 +886,44 @@ fn fit_mean(
     roles: &Roles,
 ) -> Result<(Model, FitSummary, Vec<CvRow>)> {
     let candidates = cv.candidates();
-    let weight = 1.0 / members.len() as f64;
-    let weights = vec![weight; members.len()];
-    let fits: Vec<(Model, FitSummary)> = members
+    let results: Vec<Result<(Model, FitSummary)>> = members
         .par_iter()
         .map(|&c| candidates[c].1.fit(data, roles))
-        .collect::<Result<Vec<_>>>()?;
+        .collect();
+    // A member whose refit on all the data fails is left out, and the summary
+    // says so; the mean fails only if every member does.
+    let mut kept = Vec::with_capacity(members.len());
+    let mut models = Vec::with_capacity(members.len());
+    let mut summary: Option<FitSummary> = None;
+    let mut warnings = Vec::new();
+    let mut first_error = None;
+    for (&c, result) in members.iter().zip(results) {
+        let name = candidates[c].0.as_str();
+        match result {
+            Ok((model, s)) => {
+                warnings.extend(s.warnings.iter().map(|w| format!("{name}: {w}")));
+                models.push((name.to_string(), model));
+                kept.push(c);
+                summary.get_or_insert(s);
+            }
+            Err(e) => {
+                warnings.push(format!(
+                    "{name} is left out of the mean: its refit on all the demonstrations failed: {e}"
+                ));
+                first_error.get_or_insert(e);
+            }
+        }
+    }
+    let (Some(mut summary), members) = (summary, kept.as_slice()) else {
+        return Err(first_error.unwrap_or(TscError::InvalidSetting {
+            name: "candidates",
+            reason: "the mean has no member".into(),
+        }));
+    };
+    summary.warnings = warnings;
     let labels: Vec<&str> = members.iter().map(|&c| candidates[c].0.as_str()).collect();
     let label = mean_label(&labels);
-    let mut models = Vec::with_capacity(fits.len());
-    let mut summary = None;
-    let mut warnings = Vec::new();
-    for ((model, s), name) in fits.into_iter().zip(&labels) {
-        warnings.extend(s.warnings.iter().map(|w| format!("{name}: {w}")));
-        models.push((name.to_string(), model));
-        summary.get_or_insert(s);
-    }
-    let mut summary = summary.expect("a mean has members");
-    summary.warnings = warnings;
+    let weights = vec![1.0 / members.len() as f64; members.len()];
     let model = Model::ensemble(models, &weights)?;
     let held: Option<Vec<&[HeldOut]>> = members
         .iter()

@@ -499,7 +499,8 @@ pub enum Method {
     Gmm(GmmSettings),
     /// Chooses among candidates by K-fold cross-validated prediction error of
     /// the robot's dims from the human's on the training demonstrations (folds of
-    /// whole demonstrations), then refits the winner on all of them.
+    /// whole demonstrations), then refits the winner (or, with
+    /// [`Selection::Mean`], the best `K`) on all of them.
     CrossValidated(CrossValidation),
 }
 

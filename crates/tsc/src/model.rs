@@ -138,7 +138,8 @@ impl Model {
     }
 
     /// The model whose states, segmentation and evidence stand for this one:
-    /// itself, or an ensemble's first member (the best ranked).
+    /// itself, or an ensemble's first member (the best ranked; an ensemble
+    /// without members, which [`Model::validate`] refuses, stands for itself).
     pub fn representative(&self) -> &Model {
         match self {
             Model::Ensemble(members) if !members.is_empty() => &members[0].model,
@@ -354,7 +355,13 @@ impl Model {
                 })
             }
             Model::GmmTsc { tsc, .. } => tsc.segment(seq),
-            Model::Ensemble(_) => self.representative().segment(seq, roles),
+            Model::Ensemble(members) => match members.first() {
+                Some(m) => m.model.segment(seq, roles),
+                None => Err(TscError::InvalidModel {
+                    model: "ensemble",
+                    reason: "it has no member".into(),
+                }),
+            },
         }
     }
 }

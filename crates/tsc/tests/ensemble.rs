@@ -246,17 +246,24 @@ fn a_malformed_ensemble_is_refused_by_name() {
     let inner = Model::ensemble(m.clone(), &WEIGHTS).unwrap();
     let nested = vec![("inner".to_string(), inner), m[0].clone()];
     assert!(err(Model::ensemble(nested, &[0.5, 0.5])).contains("itself an ensemble"));
-    let other = SequenceSet::new(&[vec![0.0; 8], vec![1.0; 8]], 4).unwrap();
-    let wide = Method::preset(
-        "hmm".parse().unwrap(),
-        &PresetOptions::builder().states(1).build().unwrap(),
-    )
-    .unwrap()
-    .fit(&other, &Roles::new(vec![0], vec![1, 2, 3]).unwrap());
-    if let Ok((wide, _)) = wide {
-        let mixed = vec![m[0].clone(), ("wide".to_string(), wide)];
-        assert!(err(Model::ensemble(mixed, &[0.5, 0.5])).contains("dimension"));
-    }
+    // A member of another frame dimension (a fourth column).
+    let wider: Vec<Vec<f64>> = seqs
+        .iter()
+        .map(|q| {
+            q.chunks(3)
+                .flat_map(|x| [x[0], x[1], x[2], x[1] - x[2]])
+                .collect()
+        })
+        .collect();
+    let (wide, _) = method_of_spec("gmm:states=2", &PresetOptions::default())
+        .unwrap()
+        .fit(
+            &SequenceSet::new(&wider, 4).unwrap(),
+            &Roles::new(vec![0], vec![1, 2, 3]).unwrap(),
+        )
+        .unwrap();
+    let mixed = vec![m[0].clone(), ("wide".to_string(), wide)];
+    assert!(err(Model::ensemble(mixed, &[0.5, 0.5])).contains("dimension"));
     // A file whose weights were edited is refused when read.
     let good = Model::ensemble(m, &WEIGHTS).unwrap();
     let mut json = serde_json::to_value(&good).unwrap();
@@ -348,6 +355,7 @@ fn the_cross_validated_mean_is_the_best_ranked_candidates_and_its_row_the_slow_o
     let limit = chi_squared_quantile(0.95, 2).unwrap();
     let (mut se, mut frames, mut inside, mut nlpd) = (0.0, 0usize, 0usize, 0.0);
     let mut members_se = 0.0;
+    let mut m2 = Vec::new();
     let mut scratch = [0.0; 6];
     for f in 0..folds {
         let train: Vec<usize> = (0..6).filter(|&d| plan.fold_of()[d] != f).collect();
@@ -383,6 +391,7 @@ fn the_cross_validated_mean_is_the_best_ranked_candidates_and_its_row_the_slow_o
                 let sc = score_gaussian(&r, &cov[t * 4..t * 4 + 4], &mut scratch).unwrap();
                 inside += usize::from(sc.mahalanobis2 <= limit);
                 nlpd -= sc.log_density;
+                m2.push(sc.mahalanobis2);
                 frames += 1;
             }
         }
@@ -396,6 +405,18 @@ fn the_cross_validated_mean_is_the_best_ranked_candidates_and_its_row_the_slow_o
     );
     assert_eq!(row.coverage, Some(inside as f64 / n));
     assert!((row.nlpd.unwrap() - nlpd / n).abs() <= 1e-8, "{row:?}");
+    // The mean is calibrated on these frames, its own (not its first member's).
+    let (_, calibrated) = Method::CrossValidated(cv.with_calibration(Calibration::Frames))
+        .fit(&data, &roles())
+        .unwrap();
+    let c = calibrated.covariance_calibration.unwrap();
+    assert_eq!(c.frames, frames);
+    let want = phasekit_gmr::coverage_scale(&m2, 2, 0.95).unwrap();
+    assert!(
+        (c.scale - want).abs() <= 1e-9 * want,
+        "{} vs {want}",
+        c.scale
+    );
     // What the mean is for: its error is never above its members' average
     // (Jensen: |Σ w r_i|² ≤ Σ w |r_i|²), and here strictly below.
     let members_mse = members_se / (3.0 * n);
@@ -438,15 +459,13 @@ fn the_mean_of_one_is_the_best_and_the_mean_is_calibrated_on_its_own_held_out_fr
         serde_json::to_string(&best).unwrap(),
         serde_json::to_string(&one).unwrap()
     );
-    // With calibration, the mean's factor is fitted on the mean's held-out frames:
-    // its coverage after calibration is reported from them.
+    // With calibration (on the mean's own held-out frames: the test above),
+    // 95 % of them are inside after it.
     let cv = base
         .with_selection(Selection::Mean(3))
         .with_calibration(Calibration::Frames);
     let (_, s) = Method::CrossValidated(cv).fit(&data, &roles()).unwrap();
-    let row = s.cv_table.last().unwrap();
     let c = s.covariance_calibration.as_ref().unwrap();
-    assert_eq!(c.coverage_before, row.coverage.unwrap());
     assert!((c.coverage_after - 0.95).abs() < 0.02, "{c:?}");
     // Only the survivors of halving are averaged.
     let members = &s.chosen.as_ref().unwrap();
@@ -491,10 +510,19 @@ fn the_ensemble_key_sets_the_mean_and_refuses_what_contradicts_it() {
             .selection(),
         Selection::OneStandardError
     );
-    let e = set(&[("choose", "one-se"), ("ensemble", "4")])
-        .unwrap_err()
-        .to_string();
-    assert!(e.contains("one-se") && e.contains("ensemble=4"), "{e}");
+    for (one, order) in [
+        ("one-se", [("choose", "one-se"), ("ensemble", "4")]),
+        ("one-se", [("ensemble", "4"), ("choose", "one-se")]),
+        ("best", [("choose", "best"), ("ensemble", "4")]),
+        ("best", [("ensemble", "4"), ("choose", "best")]),
+    ] {
+        let e = set(&order).unwrap_err().to_string();
+        assert!(e.contains(one) && e.contains("ensemble=4"), "{e}");
+    }
+    // The grid's name is the same in files as on the command line.
+    assert!(serde_json::to_string(&d)
+        .unwrap()
+        .contains(r#""grid":"unit-free""#));
     assert!(set(&[("ensemble", "0")])
         .unwrap_err()
         .to_string()
@@ -508,7 +536,15 @@ fn the_ensemble_key_sets_the_mean_and_refuses_what_contradicts_it() {
     old.as_object_mut().unwrap().remove("choose");
     let read: AutoSettings = serde_json::from_value(old).unwrap();
     assert_eq!(read.selection(), Selection::Best);
-    // A mean of 0 in a file is refused.
+    // A mean of 0 is refused when fitted, and in a file.
+    let seqs = phased(4, 9);
+    let zero = CrossValidation::new(grid(), 2)
+        .unwrap()
+        .with_selection(Selection::Mean(0));
+    let e = Method::CrossValidated(zero)
+        .fit(&SequenceSet::new(&seqs, 3).unwrap(), &roles())
+        .unwrap_err();
+    assert!(e.to_string().contains("at least 1"), "{e}");
     let cv = CrossValidation::new(grid(), 3)
         .unwrap()
         .with_selection(Selection::Mean(0));

@@ -580,8 +580,13 @@ fn cv_note(fit: &FitSummary) -> String {
     }
     let abandoned = fit.cv_table.iter().filter(|r| r.abandoned).count();
     let failed = fit.cv_table.iter().filter(|r| r.failure.is_some()).count();
+    // The mean's own row (last, labelled as the choice) is not a candidate.
+    let mean = fit
+        .cv_table
+        .last()
+        .is_some_and(|r| r.label.starts_with("mean of ") && fit.chosen.as_ref() == Some(&r.label));
     format!(
         " by cross-validation among {} candidates ({abandoned} abandoned early, {failed} failed; --format md shows the table)",
-        fit.cv_table.len()
+        fit.cv_table.len() - usize::from(mean)
     )
 }
