@@ -317,7 +317,7 @@ or by G-means with select=gmeans (hmm, tsc-hmm*: λ's states; gmm-tsc: its mixtu
 auto chooses the family, states, reg and emission by cross-validated prediction error
 on the training demonstrations and predicts with the mean of the best 5 (keys:
 grid=unit-free|small|default|relative|positions|mixed (unit-free, the default: every reg a
-fraction of a variance of the data, the same in any unit; default: reg in the data's units),
+fraction of a variance of the data, each candidate the same in any unit; default: reg in the data's units),
 folds=K, families=hmm+tsc-hmm+gmm, halving=on|off, ensemble=K (the mean of the best K; 1: the
 best alone), choose=best|one-se (one candidate: the lowest error, or the most
 regularised within one standard error of it), calibrate=on|predictive|demonstrations|frames|off
