@@ -652,11 +652,12 @@ fn run_seed(
         Some((train, _)) => train.iter().collect(),
         None => train_idx.iter().map(|&i| &prep.train[i]).collect(),
     };
-    let (shift, scale) = if protocol.standardise {
-        let s = crate::model_file::Standardisation::fit(&chosen, d);
-        (s.mean, s.std)
-    } else {
-        (vec![0.0; d], vec![1.0; d])
+    let standardisation = protocol
+        .standardise
+        .then(|| crate::model_file::Standardisation::fit(&chosen, d));
+    let (shift, scale) = match &standardisation {
+        Some(s) => (s.mean.clone(), s.std.clone()),
+        None => (vec![0.0; d], vec![1.0; d]),
     };
     let norm = |s: &Vec<f64>| -> Vec<f64> {
         s.chunks_exact(d)
@@ -670,6 +671,12 @@ fn run_seed(
     let train: Vec<Vec<f64>> = chosen.iter().map(|s| norm(s)).collect();
     let data = SequenceSet::new(&train, d).map_err(|e| e.to_string())?;
     let roles = layout.roles().map_err(|e| e.to_string())?;
+    // On z-scores, a cross-validated choice still judges the error in the
+    // file's units (the choice made without `--standardise`).
+    let roles = match &standardisation {
+        Some(s) => s.error_units_of(roles).map_err(|e| e.message)?,
+        None => roles,
+    };
     let clock = Instant::now();
     let (model, fit_summary) = method
         .fit(&data, &roles)

@@ -10,6 +10,14 @@
 //!              "roles", "prior", "rest", "calibration"}}
 //! ```
 //!
+//! The version follows the model files' ([`crate::model_file::VERSION`]): a
+//! library is written with the lowest version whose readers know every
+//! action's model and method (and its recognition model's), so that a
+//! phasekit too old for an HSMM or a mean of several models says so by
+//! version instead of failing to parse; a hidden-Markov-only library stays
+//! version 1. (Libraries written before 2026-12-07 say 1 whatever they hold;
+//! they read as before.)
+//!
 //! A single model file (`"format": "phasekit-model"`) is refused with a
 //! message saying what it is, and the model file reader refuses a library
 //! the same way. Numbers are written so that they read back bit for bit.
@@ -17,17 +25,43 @@
 use crate::data::{FeatureSpec, Layout, Table, Velocity};
 use crate::error::{CliError, Result};
 use crate::file_header::{check_header, FileKind};
-use crate::model_file::{MethodInfo, Standardisation};
+use crate::model_file::{version_for, MethodInfo, Standardisation};
 use crate::pipeline::{column_indices, Differencer};
 use phasekit_recognition::Library;
-use phasekit_tsc::FitSummary;
+use phasekit_tsc::{FitSummary, Method};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
 /// The `format` field of a library file.
 pub const FORMAT: &str = "phasekit-library";
-/// The library file version this build writes and reads.
-pub const VERSION: u64 = 1;
+/// The newest library file version this build writes and reads: the model
+/// files' ([`crate::model_file::VERSION`]; see the module docs).
+pub const VERSION: u64 = crate::model_file::VERSION;
+
+/// The lowest library version whose readers know every action's model
+/// fitted by `methods[i]` (in the library's order) and, with `recognition`,
+/// every action's recognition model: the highest
+/// [`crate::model_file::version_for`] among them.
+pub fn version_for_library(
+    library: &Library,
+    methods: &[&Method],
+    recognition: Option<&Method>,
+) -> u64 {
+    library
+        .actions()
+        .iter()
+        .zip(methods)
+        .flat_map(|(a, m)| {
+            let own = version_for(&a.model, m);
+            let second = match (&a.recognition, recognition) {
+                (Some(r), Some(rm)) => version_for(r, rm),
+                _ => 1,
+            };
+            [own, second]
+        })
+        .max()
+        .unwrap_or(1)
+}
 
 /// What was fitted for one action.
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -50,7 +84,8 @@ pub struct ActionInfo {
 pub struct LibraryFile {
     /// Always [`FORMAT`].
     pub format: String,
-    /// Always [`VERSION`] when written by this build.
+    /// The lowest version that describes it when written by this build
+    /// ([`version_for_library`], at most [`VERSION`]).
     pub version: u64,
     /// The phasekit version that wrote it.
     #[serde(default)]
@@ -87,7 +122,11 @@ pub fn not_a_model(path: &Path) -> CliError {
 }
 
 impl LibraryFile {
-    /// Wraps a fitted library.
+    /// Wraps a fitted library whose actions were fitted by `methods` (one per
+    /// action, in the library's order: the library's method or the action's
+    /// own) and recognised by `recognition`'s models, if any; the version is
+    /// the lowest that describes them ([`version_for_library`]).
+    #[allow(clippy::too_many_arguments)]
     pub fn new(
         layout: Layout,
         feature_spec: FeatureSpec,
@@ -95,10 +134,12 @@ impl LibraryFile {
         method: MethodInfo,
         actions: Vec<ActionInfo>,
         library: Library,
+        methods: &[&Method],
+        recognition: Option<&Method>,
     ) -> Self {
         LibraryFile {
             format: FORMAT.into(),
-            version: VERSION,
+            version: version_for_library(&library, methods, recognition),
             phasekit: env!("CARGO_PKG_VERSION").into(),
             layout,
             feature_spec,
@@ -142,7 +183,7 @@ impl LibraryFile {
             path,
             &FileKind {
                 format: FORMAT,
-                oldest: VERSION,
+                oldest: 1,
                 version: VERSION,
                 noun: "library file",
                 remedy: "refit the library",

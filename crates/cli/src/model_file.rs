@@ -180,6 +180,15 @@ impl Standardisation {
         }
     }
 
+    /// `roles` with the deviations of the robot's features as their error
+    /// units ([`Roles::with_error_units`]): a cross-validated choice (`auto`)
+    /// fitted on the z-scores then judges its error in the data's units, the
+    /// choice made without z-scoring.
+    pub fn error_units_of(&self, roles: Roles) -> Result<Roles> {
+        let units = roles.robot().iter().map(|&k| self.std[k]).collect();
+        Ok(roles.with_error_units(units)?)
+    }
+
     /// Maps standardised `O × O` covariances of the features `dims` back to data units, in place.
     pub fn unapply_cov(&self, covs: &mut [f64], dims: &[usize]) {
         let o = dims.len();

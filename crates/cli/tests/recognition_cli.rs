@@ -528,3 +528,109 @@ fn a_library_records_the_methods_that_recognise_and_predict() {
     let svg = std::fs::read_to_string(dir.path().join("p.svg")).unwrap();
     assert!(svg.contains("hmm (wave: gmm:states=3), recognised by hmm:states=3"));
 }
+
+#[test]
+fn a_standardised_library_judges_its_choices_in_the_files_units() {
+    // `fit --library --standardise`: the roles carry the deviations as error
+    // units (what an action fitted by `auto` is chosen by), one per robot dim.
+    let (dir, data) = library_data();
+    let lib = dir.path().join("lib.json");
+    phasekit()
+        .args([
+            "fit",
+            "--library",
+            "--standardise",
+            "--method",
+            "hmm",
+            "--data",
+        ])
+        .arg(&data)
+        .arg("-o")
+        .arg(&lib)
+        .assert()
+        .success();
+    let file: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&lib).unwrap()).unwrap();
+    let roles = &file["library"]["roles"];
+    let std = file["standardisation"]["std"].as_array().unwrap();
+    let robot = roles["robot"].as_array().unwrap();
+    let units = roles["error_units"].as_array().unwrap();
+    assert_eq!(units.len(), robot.len());
+    for (u, r) in units.iter().zip(robot) {
+        assert_eq!(u, &std[r.as_u64().unwrap() as usize]);
+    }
+    // Without --standardise there are none.
+    let plain_lib = dir.path().join("plain.json");
+    fit_library(&data, &plain_lib);
+    let file: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&plain_lib).unwrap()).unwrap();
+    assert!(file["library"]["roles"].get("error_units").is_none());
+}
+
+#[test]
+fn a_library_says_by_its_version_what_a_reader_must_know() {
+    // Plain hidden-Markov models: version 1, as every library before. One
+    // action with a relative regularisation (its own method), or recognised
+    // by models with one: version 2, the model files' version for it (a
+    // version-1 reader would take the amount as absolute); an action that
+    // is a mean of several models: 5. This build reads them, and refuses a
+    // newer one by version.
+    let (dir, data) = library_data();
+    let fit = |extra: &[&str], name: &str| {
+        let lib = dir.path().join(name);
+        phasekit()
+            .args(["fit", "--library", "--method", "hmm"])
+            .args(extra)
+            .arg("--data")
+            .arg(&data)
+            .arg("-o")
+            .arg(&lib)
+            .assert()
+            .success();
+        let j: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&lib).unwrap()).unwrap();
+        (lib, j)
+    };
+    assert_eq!(fit(&[], "hmm.json").1["version"], 1);
+    let (_, j) = fit(&["--action-method", "wave=hmm:reg-rel=0.01"], "own.json");
+    assert_eq!(j["version"], 2);
+    let (_, j) = fit(
+        &["--recognition-method", "hmm:states=3,reg-rel=0.01"],
+        "second.json",
+    );
+    assert_eq!(j["version"], 2);
+    let (own, j) = fit(
+        &[
+            "--action-method",
+            "wave=auto:grid=small,families=hmm,ensemble=2",
+        ],
+        "mean.json",
+    );
+    assert_eq!(j["version"], 5);
+    phasekit()
+        .args(["recognise", "--model"])
+        .arg(&own)
+        .arg("--data")
+        .arg(data.join("wave/test_00.csv"))
+        .assert()
+        .success();
+    let max = phasekit_cli::library_file::VERSION;
+    let mut newer = j.clone();
+    newer["version"] = (max + 1).into();
+    let path = dir.path().join("newer.json");
+    std::fs::write(&path, serde_json::to_string(&newer).unwrap()).unwrap();
+    phasekit()
+        .args(["recognise", "--model"])
+        .arg(&path)
+        .arg("--data")
+        .arg(data.join("wave/test_00.csv"))
+        .assert()
+        .failure()
+        .stderr(predicate::str::contains(format!(
+            "library file version {} is not supported",
+            max + 1
+        )))
+        .stderr(predicate::str::contains(format!(
+            "reads versions 1 to {max}"
+        )));
+}

@@ -248,6 +248,72 @@ fn evaluate_gives_the_same_numbers_with_and_without_standardise() {
 }
 
 #[test]
+fn auto_chooses_the_same_with_and_without_standardise() {
+    // On z-scores `auto` judges the held-out error in the file's units (the
+    // deviations are the error units), and its candidates are unit-free: the
+    // same members, the same predictions, every seed. The robot's last
+    // column in millimetres, so that its error dominates the file's sum and
+    // not the z-scores' (without the units the MSE of a seed differs by 5 %
+    // even with every column in metres).
+    let (_dir, data) = interaction_folder(8, 4, 6, |_, k, v: f64| {
+        if k == 5 {
+            (v * 1000.0).to_string()
+        } else {
+            v.to_string()
+        }
+    });
+    let methods = "auto:grid=relative,families=hmm+gmm,ensemble=2";
+    let metres = per_seed(&["--methods", methods], &data);
+    let z = per_seed(&["--methods", methods, "--standardise"], &data);
+    assert_eq!(metres.len(), 1);
+    assert_eq!(metres[0].1.len(), 3);
+    for (a, b) in metres[0].1.iter().zip(&z[0].1) {
+        assert!((a - b).abs() <= 1e-6 * a, "{a} vs {b}");
+    }
+    // `fit` records the units in the model file and its table is in the file's units.
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("auto.json");
+    let report = phasekit()
+        .args([
+            "fit",
+            "--standardise",
+            "--format",
+            "md",
+            "--method",
+            methods,
+        ])
+        .arg("--data")
+        .arg(&data)
+        .arg("-o")
+        .arg(&out)
+        .assert()
+        .success()
+        .get_output()
+        .stdout
+        .clone();
+    let report = String::from_utf8(report).unwrap();
+    assert!(
+        report.contains("per held-out frame, data units²"),
+        "{report}"
+    );
+    let units = &model_json(&out)["roles"]["error_units"];
+    let stds = &model_json(&out)["standardisation"]["std"];
+    let robot = model_json(&out)["roles"]["robot"].clone();
+    assert_eq!(
+        units.as_array().unwrap().len(),
+        robot.as_array().unwrap().len()
+    );
+    for (u, r) in units
+        .as_array()
+        .unwrap()
+        .iter()
+        .zip(robot.as_array().unwrap())
+    {
+        assert_eq!(u, &stds[r.as_u64().unwrap() as usize]);
+    }
+}
+
+#[test]
 fn the_fit_report_names_the_positions_unit() {
     let (dir, data) = interaction_folder(5, 4, 6, plain);
     let out = dir.path().join("pos.json");

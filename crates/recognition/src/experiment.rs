@@ -523,6 +523,14 @@ fn run_seed(
             scale: vec![1.0; d],
         }
     };
+    // On z-scores, an action fitted by cross-validation (`auto`) judges the
+    // error in the files' units (the choice made without `--standardise`).
+    let roles = if s.standardise {
+        let units = ds.roles.robot().iter().map(|&k| sc.scale[k]).collect();
+        ds.roles.clone().with_error_units(units)?
+    } else {
+        ds.roles.clone()
+    };
     let fitted = ds
         .actions
         .iter()
@@ -536,12 +544,12 @@ fn run_seed(
                 &set,
                 own.map_or(method, |m| &m.2),
                 s.recognition.as_ref().map(|r| &r.1),
-                &ds.roles,
+                &roles,
                 &s.library,
             )
         })
         .collect::<Result<Vec<_>>>()?;
-    let library = Library::assemble(&fitted, &ds.roles, &s.library)?;
+    let library = Library::assemble(&fitted, &roles, &s.library)?;
     let rest_pose = library.rest_pose();
     // Test demonstrations: (action, human features as the models see them, joint data).
     let tests: Vec<(usize, Vec<f64>, &Vec<f64>)> = ds
@@ -599,7 +607,7 @@ fn run_seed(
                 .filter(|(i, _)| *i != left_out)
                 .map(|(_, f)| f.clone())
                 .collect();
-            let lib = Library::assemble(&rest, &ds.roles, &s.library)?;
+            let lib = Library::assemble(&rest, &roles, &s.library)?;
             let mut r = Recogniser::new(&lib, settings_for(true, None))?;
             for (a, human, _) in &tests {
                 r.reset();

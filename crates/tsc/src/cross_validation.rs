@@ -9,7 +9,11 @@
 //! demonstrations; its cross-validated error is the pooled mean over every
 //! held-out frame of the folds it was scored on (per frame, summed over the
 //! scored dims, in data units squared: the evaluation's metric on the
-//! training demonstrations).
+//! training demonstrations). When the data given are not in the user's units
+//! (z-scores), [`Roles::with_error_units`] names the user's: each scored
+//! dim's residual is multiplied by its unit before squaring (and the NLPD
+//! moved by `Σ ln u`), so the table and the choice are those in the user's
+//! units.
 //!
 //! **Calibration.** Every held-out frame is also scored against the
 //! predictive covariance of the scored dims: its squared Mahalanobis distance
@@ -83,8 +87,9 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::time::Instant;
 
-/// Mean squared prediction error of the robot's dims (all of them, in data
-/// units) per frame over held-out demonstrations, for every candidate: `Ok`
+/// Mean squared prediction error of the robot's scored dims (in the roles'
+/// error units, [`Roles::with_error_units`]; the data's when unset) per
+/// frame over held-out demonstrations, for every candidate: `Ok`
 /// with the error, or `Err` with why the candidate could not be scored (the
 /// fold it failed on, [`TscError::InFold`], or no scorable frame,
 /// [`TscError::NoScorableFrames`]).
@@ -205,8 +210,10 @@ pub struct CvRow {
     pub label: String,
     /// Folds it was scored on (fewer than all when abandoned or failed).
     pub folds_scored: usize,
-    /// Pooled mean squared error per held-out frame over those folds (data
-    /// units squared, summed over the robot's dims); NaN when none was scored.
+    /// Pooled mean squared error per held-out frame over those folds (summed
+    /// over the scored dims, in the roles' error units squared
+    /// ([`Roles::with_error_units`]; the data's when unset)); NaN when none
+    /// was scored.
     pub mse: f64,
     /// Population standard deviation over those folds of the per-fold MSE.
     pub mse_sd: f64,
@@ -222,7 +229,8 @@ pub struct CvRow {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub coverage: Option<f64>,
     /// Mean negative log predictive density of those frames' scored dims (nats,
-    /// in data units), before any calibration; `None` as for `coverage`.
+    /// a density per error unit, as `mse`), before any calibration; `None` as
+    /// for `coverage`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub nlpd: Option<f64>,
     /// Why it could not be scored (the fold and the error), if it failed.
@@ -335,6 +343,9 @@ fn score_fold(
     let o = roles.robot().len();
     let (scored, outputs) = (roles.scored(), roles.scored_outputs());
     let p = scored.len();
+    // The error in the user's units (1 unless the data are z-scored; `r · 1`
+    // is `r` to the bit, so unset units change nothing).
+    let units = roles.scored_error_units();
     let (mut se, mut frames) = (0.0, 0usize);
     let (mut residual, mut block, mut scratch) =
         (vec![0.0; p], vec![0.0; p * p], vec![0.0; p * (p + 1)]);
@@ -359,7 +370,11 @@ fn score_fold(
             for (a, (&r, &j)) in scored.iter().zip(&outputs).enumerate() {
                 residual[a] = x[r] - pred.mean[t * o + j];
             }
-            se += residual.iter().map(|v| v * v).sum::<f64>();
+            se += residual
+                .iter()
+                .zip(&units)
+                .map(|(v, u)| (v * u) * (v * u))
+                .sum::<f64>();
             frames += 1;
             if let (Some((held_out, log_density)), Some(cov)) =
                 (calibration.as_mut(), pred.covariance.as_deref())
@@ -410,6 +425,7 @@ fn score_candidates(
     let n = candidates.len();
     let folds = plan.folds;
     let limit = chi_squared_quantile(COVERAGE_LEVEL, roles.scored().len());
+    let jacobian = log_jacobian(roles);
     let mut scores: Vec<Vec<FoldOutcome>> = vec![Vec::new(); n];
     let mut failure: Vec<Option<TscError>> = vec![None; n];
     let mut alive: Vec<usize> = (0..n).collect();
@@ -491,7 +507,7 @@ fn score_candidates(
                         .count();
                     (
                         Some(inside as f64 / n as f64),
-                        Some(-log_density / n as f64),
+                        Some(-log_density / n as f64 + jacobian),
                     )
                 }
                 _ => (None, None),
@@ -647,7 +663,7 @@ fn calibrate(
     // held-out errors' covariance; the frames' distances and mean log
     // density under it.
     let (added, residual_weight, distances, shaped_nlpd) = match (rule == Calibration::Predictive)
-        .then(|| shaped(groups, p))
+        .then(|| shaped(groups, p, log_jacobian(roles)))
     {
         Some(Ok(shaped)) => shaped,
         other => {
@@ -734,11 +750,12 @@ fn calibrate(
 
 /// The added covariance (`p × p`), its weight, the held-out frames'
 /// distances under `Σ_t + A` per demonstration, and their mean negative log
-/// density.
+/// density (in the user's units, as the row's).
 type Shaped = (Vec<f64>, f64, Vec<Vec<f64>>, f64);
 
-/// The `predictive` rule's shape on the held-out frames ([`residual_shape`]).
-fn shaped(groups: &[HeldOut], p: usize) -> Result<Shaped> {
+/// The `predictive` rule's shape on the held-out frames ([`residual_shape`]);
+/// `jacobian` ([`log_jacobian`]) moves the NLPD to the user's units.
+fn shaped(groups: &[HeldOut], p: usize, jacobian: f64) -> Result<Shaped> {
     let residuals: Vec<f64> = groups
         .iter()
         .flat_map(|g| g.residuals.iter().copied())
@@ -773,7 +790,7 @@ fn shaped(groups: &[HeldOut], p: usize) -> Result<Shaped> {
         shape.added,
         shape.weight,
         distances,
-        -log_density / n as f64,
+        -log_density / n as f64 + jacobian,
     ))
 }
 
@@ -958,7 +975,7 @@ fn fit_mean(
         }
     };
     if let Some((groups, log_density)) = &mean_groups {
-        let (mse, mse_sd) = fold_errors(groups, p);
+        let (mse, mse_sd) = fold_errors(groups, &roles.scored_error_units());
         let n: usize = groups.iter().map(|g| g.mahalanobis2.len()).sum();
         let limit = chi_squared_quantile(COVERAGE_LEVEL, p)?;
         let inside = groups
@@ -970,7 +987,7 @@ fn fit_mean(
         row.mse_sd = mse_sd;
         if n > 0 {
             row.coverage = Some(inside as f64 / n as f64);
-            row.nlpd = Some(-log_density / n as f64);
+            row.nlpd = Some(-log_density / n as f64 + log_jacobian(roles));
         }
     }
     summary.covariance_calibration = calibrate(
@@ -1046,12 +1063,25 @@ fn mean_held_out(members: &[&[HeldOut]], weights: &[f64], p: usize) -> Result<(V
     Ok((out, log_density))
 }
 
-/// The pooled squared error per frame of held-out frames, and the population
-/// standard deviation over folds of the per-fold error (as a candidate's row).
-fn fold_errors(groups: &[HeldOut], p: usize) -> (f64, f64) {
+/// `Σ_a ln u_a` over the scored dims' error units ([`Roles::with_error_units`]):
+/// what a log density per data unit loses per frame when measured per user unit.
+fn log_jacobian(roles: &Roles) -> f64 {
+    roles.scored_error_units().iter().map(|u| u.ln()).sum()
+}
+
+/// The pooled squared error per frame of held-out frames (in the user's
+/// units: the residual of scored dim `a` times `units[a]`), and the
+/// population standard deviation over folds of the per-fold error (as a
+/// candidate's row).
+fn fold_errors(groups: &[HeldOut], units: &[f64]) -> (f64, f64) {
+    let p = units.len();
     let mut per_fold: Vec<(usize, f64, usize)> = Vec::new();
     for g in groups {
-        let se: f64 = g.residuals.iter().map(|v| v * v).sum();
+        let se: f64 = g
+            .residuals
+            .chunks_exact(p.max(1))
+            .flat_map(|r| r.iter().zip(units).map(|(v, u)| (v * u) * (v * u)))
+            .sum();
         let frames = g.residuals.len() / p.max(1);
         match per_fold.iter_mut().find(|(f, _, _)| *f == g.fold) {
             Some((_, s, n)) => {

@@ -21,7 +21,14 @@ use serde::{Deserialize, Serialize};
 /// differences of other dims, each with its position's dim: the command names
 /// them for `--velocity`. A regularisation relative to the positions
 /// ([`crate::RegUnits::Positions`]) reads them.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+///
+/// The *error units* ([`Roles::error_units`], none unless
+/// [`Roles::with_error_units`] sets them) say in which unit a cross-validated
+/// choice judges the robot's prediction error when the data given are not in
+/// the user's units: the command, when it z-scores (`--standardise`), sets
+/// them to the standard deviations, so that `auto` chooses by the error in
+/// the file's units, the same choice as without `--standardise`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(try_from = "RolesRaw")]
 pub struct Roles {
     human: Vec<usize>,
@@ -30,6 +37,8 @@ pub struct Roles {
     scored: Option<Vec<usize>>,
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     velocities: Vec<(usize, usize)>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    error_units: Option<Vec<f64>>,
 }
 
 /// The serialised form of [`Roles`], before validation.
@@ -41,6 +50,8 @@ struct RolesRaw {
     scored: Option<Vec<usize>>,
     #[serde(default)]
     velocities: Vec<(usize, usize)>,
+    #[serde(default)]
+    error_units: Option<Vec<f64>>,
 }
 
 impl TryFrom<RolesRaw> for Roles {
@@ -51,7 +62,11 @@ impl TryFrom<RolesRaw> for Roles {
             Some(s) => roles.with_scored(s)?,
             None => roles,
         };
-        roles.with_velocities(r.velocities)
+        let roles = roles.with_velocities(r.velocities)?;
+        match r.error_units {
+            Some(u) => roles.with_error_units(u),
+            None => Ok(roles),
+        }
     }
 }
 
@@ -85,6 +100,7 @@ impl Roles {
             robot,
             scored: None,
             velocities: Vec::new(),
+            error_units: None,
         })
     }
 
@@ -180,6 +196,56 @@ impl Roles {
             .iter()
             .filter_map(|d| self.robot.iter().position(|r| r == d))
             .collect()
+    }
+
+    /// Sets the unit in which a cross-validated choice judges the error of
+    /// each of the robot's dims: `units[j]` (finite, positive) for
+    /// [`Roles::robot`]`[j]`, the factor that takes a value of the data given
+    /// to the user's unit (the standard deviation, for z-scored data). The
+    /// squared error of a held-out frame is then `Σ_a (u_a (y_a − μ_a))²`
+    /// over the scored dims `a`, its log density gains `−Σ_a ln u_a`: both in
+    /// the user's units. Calibration (Mahalanobis distances) does not depend
+    /// on them.
+    pub fn with_error_units(mut self, units: Vec<f64>) -> Result<Roles> {
+        if units.len() != self.robot.len() {
+            return Err(TscError::InvalidSetting {
+                name: "roles",
+                reason: format!(
+                    "{} error units for the robot's {} dimensions",
+                    units.len(),
+                    self.robot.len()
+                ),
+            });
+        }
+        if let Some((j, u)) = units
+            .iter()
+            .enumerate()
+            .find(|(_, u)| !(u.is_finite() && **u > 0.0))
+        {
+            return Err(TscError::InvalidSetting {
+                name: "roles",
+                reason: format!(
+                    "the error unit of the robot's dimension {} is {u}, not a finite positive number",
+                    self.robot[j]
+                ),
+            });
+        }
+        self.error_units = Some(units);
+        Ok(self)
+    }
+
+    /// The error units of the robot's dims, if set ([`Roles::with_error_units`]).
+    pub fn error_units(&self) -> Option<&[f64]> {
+        self.error_units.as_deref()
+    }
+
+    /// The error unit of each scored dim, in [`Roles::scored`]'s order (1
+    /// when none are set).
+    pub fn scored_error_units(&self) -> Vec<f64> {
+        match &self.error_units {
+            Some(u) => self.scored_outputs().iter().map(|&j| u[j]).collect(),
+            None => vec![1.0; self.scored().len()],
+        }
     }
 
     /// The human's dims (inputs), in the order the predictor reads them.

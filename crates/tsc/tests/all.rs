@@ -4,8 +4,10 @@
 
 mod auto;
 mod calibration;
+mod candidates;
 mod emissions;
 mod ensemble;
+mod error_units;
 mod gmeans_states;
 mod hsmm_preset;
 mod model_files_v1;

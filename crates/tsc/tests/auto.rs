@@ -404,15 +404,7 @@ fn the_one_standard_error_rule_takes_the_most_regularised_within_one_se() {
         "hmm:states=4,reg=1e-1", // 101: abandoned
         "hmm:states=3,reg=1e-1", // 101: failed
     ];
-    let candidates: Vec<(String, Method)> = specs
-        .iter()
-        .map(|s| {
-            (
-                s.to_string(),
-                method_of_spec(s, &PresetOptions::default()).unwrap(),
-            )
-        })
-        .collect();
+    let candidates: Vec<(String, Method)> = crate::candidates::candidates(&specs);
     let table = [
         row(specs[0], 100.0, 8.0, false, false),
         row(specs[1], 103.9, 1.0, false, false),

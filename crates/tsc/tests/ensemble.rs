@@ -294,22 +294,14 @@ fn an_empty_predictor_ensemble_is_refused() {
 }
 
 fn grid() -> Vec<(String, Method)> {
-    [
+    crate::candidates::candidates(&[
         "hmm:states=3,reg=1e-2",
         "hmm:states=5,reg=1e-3",
         "hmm:states=8,reg=1e-3",
         "gmm:states=4,reg=1e-2",
         "gmm:states=8,reg=1e-3",
         "tsc-hmm:states=3,reg=1e-3",
-    ]
-    .iter()
-    .map(|s| {
-        (
-            s.to_string(),
-            method_of_spec(s, &PresetOptions::default()).unwrap(),
-        )
-    })
-    .collect()
+    ])
 }
 
 #[test]

@@ -31,6 +31,11 @@ pub struct FitReport {
     pub features: Vec<String>,
     /// Whether features were z-scored.
     pub standardised: bool,
+    /// The unit of the cross-validation table's MSE (with a table only):
+    /// `data units²`, also on z-scores, where the choice judges the error in
+    /// the file's units; `standardised units²` in files fitted before it did.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub cv_error_unit: Option<String>,
     /// The unit of `regularisation`: `absolute` (the features' units², added
     /// to every covariance diagonal), `relative` (a fraction of each
     /// feature's variance) or `positions` (a fraction of each position's
@@ -64,6 +69,13 @@ impl FitReport {
             frames,
             features: mf.layout.features.clone(),
             standardised: mf.standardisation.is_some(),
+            cv_error_unit: (!mf.fit.cv_table.is_empty()).then(|| {
+                if mf.standardisation.is_some() && mf.roles.error_units().is_none() {
+                    "standardised units²".to_string()
+                } else {
+                    "data units²".to_string()
+                }
+            }),
             regularisation_unit: regularisation_unit(mf),
             fit: mf.fit.clone(),
             model_file,
@@ -236,6 +248,12 @@ pub fn fit_tables(
     }
     let data = SequenceSet::new(&seqs, d)?;
     let roles = layout.roles()?;
+    // On z-scores, a cross-validated choice (`auto`) still judges the error in
+    // the file's units: the choice made without `--standardise`.
+    let roles = match &standardisation {
+        Some(s) => s.error_units_of(roles)?,
+        None => roles,
+    };
     // The library's message names the settings as flags (`CliError::from`),
     // including its advice when the transition segments are too few or short.
     let (model, mut summary) = named
@@ -500,7 +518,10 @@ fn markdown(r: &FitReport) -> String {
     ] {
         s.push_str(&format!("| {k} | {v} |\n"));
     }
-    s.push_str(&cv_table_markdown(&r.fit, r.standardised));
+    s.push_str(&cv_table_markdown(
+        &r.fit,
+        r.cv_error_unit.as_deref().unwrap_or("data units²"),
+    ));
     for n in &r.notes {
         s.push_str(&format!("\nNote: {n}\n"));
     }
@@ -508,16 +529,11 @@ fn markdown(r: &FitReport) -> String {
 }
 
 /// The cross-validation table of a choice by cross-validation (`auto`, the
-/// `-cv` presets), as Markdown; empty for other methods.
-pub fn cv_table_markdown(fit: &FitSummary, standardised: bool) -> String {
+/// `-cv` presets), as Markdown, its MSE in `unit`; empty for other methods.
+pub fn cv_table_markdown(fit: &FitSummary, unit: &str) -> String {
     if fit.cv_table.is_empty() {
         return String::new();
     }
-    let unit = if standardised {
-        "standardised units²"
-    } else {
-        "data units²"
-    };
     let mut s = format!(
         "\nCross-validation on the training demonstrations (MSE of the robot's scored features — its positions — per held-out frame, {unit}; \
          ± population sd over folds; coverage of the predicted 95 % region and mean negative log predictive density (nats) of the same frames, before calibration; \

@@ -419,6 +419,12 @@ pub fn fit_library(a: &FitArgs, settings: &LibraryArgs) -> Result<()> {
         .map(|p| SequenceSet::new(&p.seqs, dim))
         .collect::<std::result::Result<Vec<_>, _>>()?;
     let roles = Roles::new(layout.human.clone(), layout.robot.clone())?;
+    // On z-scores, an action fitted by cross-validation (`auto`) still judges
+    // the error in the files' units, as `fit --standardise` does.
+    let roles = match &standardisation {
+        Some(s) => s.error_units_of(roles)?,
+        None => roles,
+    };
     let frames: usize = per_action.iter().map(|p| p.frames).sum();
     let bar = output::spinner(&format!(
         "fitting {} to {} actions ({frames} frames)",
@@ -464,6 +470,9 @@ pub fn fit_library(a: &FitArgs, settings: &LibraryArgs) -> Result<()> {
         &lib_settings,
     );
     bar.finish_and_clear();
+    // Each action's method, for the file's version (the actions borrow the
+    // training data, which the report takes next).
+    let methods: Vec<Method> = actions.iter().map(|a| a.2.clone()).collect();
     let (library, summaries) = fitted.map_err(|e| {
         CliError::new(format!(
             "fitting the library with `{}` failed: {e}",
@@ -491,6 +500,8 @@ pub fn fit_library(a: &FitArgs, settings: &LibraryArgs) -> Result<()> {
         },
         infos,
         library,
+        &methods.iter().collect::<Vec<_>>(),
+        recognition.as_ref().map(|r| &r.method),
     );
     file.recognition_method = recognition.map(|r| r.label);
     if let Some(path) = &a.output {
