@@ -402,6 +402,47 @@ pub struct Row {
     /// not serialised (the aggregate is [`Row::error_by_time`]).
     #[serde(skip)]
     pub per_seed_time_bins: Vec<Option<TimeBins>>,
+    /// The same scores per test demonstration, in the order of the test files
+    /// ([`TestDemonstrationSummary`]); empty in files written before it existed
+    /// and for the constant-mean baseline.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub by_test_demonstration: Vec<TestDemonstrationSummary>,
+    /// How many distinct training subsets the seeds drew (a seed is a subset,
+    /// and `C(n, size)` bounds them: seeds beyond it repeat subsets); 0 in
+    /// files written before it existed.
+    #[serde(default)]
+    pub training_subsets: usize,
+}
+
+/// One test demonstration's scores over the seeds: its MSE, the coverage of
+/// the 95 % region and the NLPD on its frames alone.
+///
+/// The test demonstrations are the same on every seed (only the training
+/// subset changes), so an action's coverage is the frame-weighted mean of
+/// two or three of these: one demonstration unlike the training ones moves
+/// it by points, which this shows.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TestDemonstrationSummary {
+    /// The test file's name.
+    pub name: String,
+    /// Scored frames (the same on every seed).
+    pub frames: usize,
+    /// Mean over seeds of its MSE (unit²).
+    #[serde(deserialize_with = "nan_if_null")]
+    pub mse_mean: f64,
+    /// Population sd over seeds of its MSE.
+    #[serde(deserialize_with = "nan_if_null")]
+    pub mse_std: f64,
+    /// Mean over the seeds whose calibration could be scored of the fraction
+    /// of its frames inside the predicted 95 % region, in [0, 1].
+    #[serde(default = "nan", deserialize_with = "nan_if_null")]
+    pub coverage_mean: f64,
+    /// Population sd over those seeds of the coverage.
+    #[serde(default = "nan", deserialize_with = "nan_if_null")]
+    pub coverage_std: f64,
+    /// Mean over those seeds of its mean NLPD per frame (nats).
+    #[serde(default = "nan", deserialize_with = "nan_if_null")]
+    pub nlpd_mean: f64,
 }
 
 fn nan() -> f64 {
@@ -573,6 +614,8 @@ pub struct Prepared {
     pub train: Vec<Vec<f64>>,
     /// Test demonstrations.
     pub test: Vec<Vec<f64>>,
+    /// The test files' names, in the order of `test`.
+    pub test_names: Vec<String>,
 }
 
 /// Builds the features of an action's demonstrations.
@@ -591,10 +634,21 @@ pub fn prepare(action: &Action, spec: &FeatureSpec) -> Result<Prepared, String> 
     let train = feats(&action.train)?;
     let test = feats(&action.test)?;
     let layout = layout.ok_or_else(|| format!("action {} has no demonstration", action.name))?;
+    let test_names = action
+        .test
+        .iter()
+        .map(|t| {
+            t.path.file_name().map_or_else(
+                || t.path.display().to_string(),
+                |n| n.to_string_lossy().into_owned(),
+            )
+        })
+        .collect();
     Ok(Prepared {
         layout,
         train,
         test,
+        test_names,
     })
 }
 
@@ -622,6 +676,61 @@ pub fn subset(seed: u64, n: usize, size: usize) -> Vec<usize> {
     idx
 }
 
+/// How many distinct training subsets seeds `0 .. seeds` draw ([`subset`]).
+pub fn distinct_subsets(seeds: u64, n: usize, size: usize) -> usize {
+    let mut all: Vec<Vec<usize>> = (0..seeds).map(|s| subset(s, n, size)).collect();
+    all.sort_unstable();
+    all.dedup();
+    all.len()
+}
+
+/// Per test demonstration, its scores over the seeds that succeeded (`ok`):
+/// MSE over all of them, coverage and NLPD over those whose calibration could
+/// be scored (as the row's).
+fn summarise_test_demonstrations(
+    names: &[String],
+    ok: &[&SeedResult],
+) -> Vec<TestDemonstrationSummary> {
+    names
+        .iter()
+        .enumerate()
+        .map(|(k, name)| {
+            // A demonstration without a scored frame has nothing to average.
+            let seeds = ok.iter().filter(|r| r.by_demonstration[k].frames > 0);
+            let sums: Vec<DemonstrationSums> =
+                seeds.clone().map(|r| r.by_demonstration[k]).collect();
+            let scored: Vec<DemonstrationSums> = seeds
+                .filter(|r| r.coverage.is_finite())
+                .map(|r| r.by_demonstration[k])
+                .collect();
+            let (mse_mean, mse_std) =
+                mean_std(&sums.iter().map(DemonstrationSums::mse).collect::<Vec<_>>());
+            let (coverage_mean, coverage_std) = mean_std(
+                &scored
+                    .iter()
+                    .map(|d| d.inside as f64 / d.frames as f64)
+                    .collect::<Vec<_>>(),
+            );
+            let nlpd_mean = mean_std(
+                &scored
+                    .iter()
+                    .map(|d| d.nlpd / d.frames as f64)
+                    .collect::<Vec<_>>(),
+            )
+            .0;
+            TestDemonstrationSummary {
+                name: name.clone(),
+                frames: sums.first().map_or(0, |d| d.frames),
+                mse_mean,
+                mse_std,
+                coverage_mean,
+                coverage_std,
+                nlpd_mean,
+            }
+        })
+        .collect()
+}
+
 /// Outcome of one seed of one method.
 struct SeedResult {
     mse: f64,
@@ -635,6 +744,23 @@ struct SeedResult {
     /// The calibration factor of the predictive covariance, when the fit calibrated.
     covariance_scale: Option<f64>,
     time_bins: TimeBins,
+    /// The same sums per test demonstration, in the order of the test files.
+    by_demonstration: Vec<DemonstrationSums>,
+}
+
+/// One test demonstration's sums on one seed.
+#[derive(Debug, Clone, Copy, Default)]
+struct DemonstrationSums {
+    squared_error: f64,
+    frames: usize,
+    inside: usize,
+    nlpd: f64,
+}
+
+impl DemonstrationSums {
+    fn mse(&self) -> f64 {
+        self.squared_error / self.frames as f64
+    }
 }
 
 /// One seed of one method; `removed` holds the seed's training and test
@@ -707,6 +833,7 @@ fn run_seed(
     // seed's coverage and NLPD undefined (NaN, left out of their means) but
     // never costs the seed its MSE.
     let mut calibration_error: Option<String> = None;
+    let mut by_demonstration = vec![DemonstrationSums::default(); prep.test.len()];
     for (k, test) in prep.test.iter().enumerate() {
         let normed = norm(removed.map_or(test, |(_, t)| &t[k]));
         let human =
@@ -757,10 +884,13 @@ fn run_seed(
                 .sum::<f64>();
             by_time.frames[bin] += 1;
             for &j in &layout.robot_positions {
-                let k = layout.robot[j];
-                let predicted = pred.mean[t * o + j] * scale[k] + shift[k];
-                se += ((predicted - f[k]) * protocol.unit_scale).powi(2);
+                let c = layout.robot[j];
+                let predicted = pred.mean[t * o + j] * scale[c] + shift[c];
+                let squared = ((predicted - f[c]) * protocol.unit_scale).powi(2);
+                se += squared;
+                by_demonstration[k].squared_error += squared;
             }
+            by_demonstration[k].frames += 1;
             // Calibration in the model's (standardised) space, where the covariance
             // lives: Mahalanobis² does not depend on the units; the log density
             // is moved to the reported unit by the Jacobian Σ_j log(scale_j · unit_scale).
@@ -781,6 +911,8 @@ fn run_seed(
             match phasekit_gmr::score_gaussian(&residual, &block, &mut scratch) {
                 Ok(score) => {
                     inside += usize::from(score.mahalanobis2 <= limit);
+                    by_demonstration[k].inside += usize::from(score.mahalanobis2 <= limit);
+                    by_demonstration[k].nlpd -= score.log_density - jacobian;
                     if let Some(c) = by_time.covered.as_mut() {
                         c[bin] += usize::from(score.mahalanobis2 <= limit);
                     }
@@ -824,6 +956,7 @@ fn run_seed(
         covariance_scale: fit_summary.covariance_calibration.as_ref().map(|c| c.scale),
         chosen: fit_summary.chosen,
         time_bins: by_time,
+        by_demonstration,
     })
 }
 
@@ -854,6 +987,7 @@ pub fn evaluate_action(
         ));
     }
     let seeds = if size >= n { 1 } else { protocol.seeds.max(1) };
+    let training_subsets = distinct_subsets(seeds as u64, n, size);
     let results: Vec<Vec<Result<SeedResult, String>>> = (0..seeds as u64)
         .into_par_iter()
         .map(|seed| {
@@ -969,6 +1103,8 @@ pub fn evaluate_action(
                     .iter()
                     .map(|r| r.as_ref().ok().map(|x| x.time_bins.clone()))
                     .collect(),
+                by_test_demonstration: summarise_test_demonstrations(&prep.test_names, &ok),
+                training_subsets,
             }
         })
         .collect())

@@ -3,6 +3,7 @@
 //! Each file stays a module of its own; add a `mod` line for a new one.
 
 mod auto_cli;
+mod by_test_demonstration;
 mod calibration;
 mod cli;
 mod common;

@@ -1349,6 +1349,7 @@ fn evaluate_prints_the_metric_compares_twice_and_fails_loudly() {
         &[
             "evaluate.json",
             "evaluate.md",
+            "evaluate_by_test_demonstration.csv",
             "evaluate_error_by_time.csv",
             "evaluate_error_by_time_data.svg",
         ],
@@ -1369,6 +1370,7 @@ fn evaluate_prints_the_metric_compares_twice_and_fails_loudly() {
         &[
             "evaluate.json",
             "evaluate.md",
+            "evaluate_by_test_demonstration.csv",
             "evaluate_error_by_time.csv",
             "evaluate_error_by_time_data.svg",
         ],

@@ -7,7 +7,7 @@ use crate::data::{self, Action, FeatureSpec};
 use crate::error::{CliError, Result};
 use crate::experiment::{
     constant_mean_mse, evaluate_action, paired, parse_method, prepare, NamedMethod, Protocol, Row,
-    TimeBinSummary,
+    TestDemonstrationSummary, TimeBinSummary,
 };
 use crate::output;
 use crate::units::{mean_pm, sig4, Unit};
@@ -340,7 +340,119 @@ pub fn markdown(r: &Report) -> String {
 /// The Markdown document of a report: the table, then the metric's definition
 /// (what `evaluate` prints and writes to PREFIX.md).
 pub fn markdown_document(r: &Report) -> String {
-    format!("{}\n{}{}\n", markdown(r), choices(r), r.metric)
+    format!(
+        "{}\n{}{}{}\n",
+        markdown(r),
+        choices(r),
+        by_test_demonstration_markdown(r),
+        r.metric
+    )
+}
+
+/// The rows of the scores by test demonstration: (action, method, the
+/// demonstration's summary), every method but the baseline, in the order of
+/// the results table and of the test files.
+pub fn by_test_demonstration_rows(
+    results: &[ResultRow],
+) -> Vec<(&str, &str, &TestDemonstrationSummary)> {
+    results
+        .iter()
+        .filter(|x| !x.baseline)
+        .flat_map(|x| {
+            x.row
+                .by_test_demonstration
+                .iter()
+                .map(|d| (x.row.action.as_str(), x.row.method.as_str(), d))
+        })
+        .collect()
+}
+
+/// The scores per test demonstration as Markdown: how many distinct training
+/// subsets the seeds drew per action, then one line per action × method ×
+/// test file. Empty when no row has them.
+fn by_test_demonstration_markdown(r: &Report) -> String {
+    let rows = by_test_demonstration_rows(&r.results);
+    if rows.is_empty() {
+        return String::new();
+    }
+    let unit = unit_of(&r.protocol);
+    let mut subsets: Vec<String> = Vec::new();
+    for x in r
+        .results
+        .iter()
+        .filter(|x| !x.baseline && x.row.training_subsets > 0)
+    {
+        let line = format!(
+            "{} {} in {} seeds",
+            x.row.action,
+            x.row.training_subsets,
+            x.row.per_seed_mse.len()
+        );
+        if !subsets.contains(&line) {
+            subsets.push(line);
+        }
+    }
+    let pct = |v: f64| {
+        if v.is_finite() {
+            format!("{:.1}", 100.0 * v)
+        } else {
+            "–".to_string()
+        }
+    };
+    let mut s = format!(
+        "By test demonstration (the test files are the same on every seed; only the training subset changes; distinct training subsets: {}). An action's MSE, coverage and NLPD are these, weighted by frames.\n\n| action | method | test demonstration | frames | MSE ({}) | coverage 95 % (%) | NLPD (nats) |\n|---|---|---|---:|---:|---:|---:|\n",
+        subsets.join(", "),
+        unit.squared()
+    );
+    for (action, method, d) in rows {
+        s.push_str(&format!(
+            "| {action} | {method} | {} | {} | {} | {} | {} |\n",
+            d.name,
+            d.frames,
+            sig4(d.mse_mean),
+            pct(d.coverage_mean),
+            if d.nlpd_mean.is_finite() {
+                format!("{:.3}", d.nlpd_mean)
+            } else {
+                "–".to_string()
+            }
+        ));
+    }
+    s.push('\n');
+    s
+}
+
+/// `PREFIX_by_test_demonstration.csv`: the rows of
+/// [`by_test_demonstration_rows`], the MSE's mean and population sd over seeds
+/// in the unit² the header names, the coverage of the 95 % region (fraction
+/// in [0, 1]) and the NLPD (nats); empty where undefined.
+pub fn by_test_demonstration_csv(r: &Report) -> String {
+    let u = squared_suffix(&unit_of(&r.protocol));
+    let mut s = format!(
+        "action,method,test_demonstration,frames,mse_mean_{u},mse_sd_{u},coverage_mean,coverage_sd,nlpd_mean\n"
+    );
+    let fin = |v: f64| {
+        if v.is_finite() {
+            v.to_string()
+        } else {
+            String::new()
+        }
+    };
+    for (action, method, d) in by_test_demonstration_rows(&r.results) {
+        s.push_str(&format!(
+            "{},{},{},{},{},{},{},{},{}\n",
+            output::csv_field(action),
+            output::csv_field(method),
+            output::csv_field(&d.name),
+            d.frames,
+            fin(d.mse_mean),
+            fin(d.mse_std),
+            fin(d.coverage_mean),
+            fin(d.coverage_std),
+            fin(d.nlpd_mean),
+        ));
+    }
+    s
 }
 
 /// What the choosing methods chose, per action: every choice and on how many
@@ -475,6 +587,8 @@ fn baseline_row(action: &str, mse: f64) -> Row {
         per_seed_chosen: Vec::new(),
         error_by_time: Vec::new(),
         per_seed_time_bins: Vec::new(),
+        by_test_demonstration: Vec::new(),
+        training_subsets: 0,
     }
 }
 
@@ -696,8 +810,23 @@ pub fn run(a: &EvaluateArgs) -> Result<()> {
     let extra = match &outputs {
         Some((md_path, _)) => {
             report.error_by_time = Some(error_by_time_rows(&report.results));
-            let files = error_by_time_files(&report, md_path)?;
+            let mut files = error_by_time_files(&report, md_path)?;
             md.push_str(&error_by_time_line(&report, &files));
+            if !by_test_demonstration_rows(&report.results).is_empty() {
+                let text = md_path.as_os_str().to_string_lossy();
+                let path = PathBuf::from(format!(
+                    "{}_by_test_demonstration.csv",
+                    text.strip_suffix(".md").unwrap_or(&text)
+                ));
+                md.push_str(&format!(
+                    "Scores by test demonstration (the table above, MSE sd over seeds too): {}.\n",
+                    path.file_name().map_or_else(
+                        || path.display().to_string(),
+                        |n| n.to_string_lossy().into_owned()
+                    )
+                ));
+                files.push((path, by_test_demonstration_csv(&report)));
+            }
             files
         }
         None => Vec::new(),
