@@ -552,7 +552,9 @@ pub struct EvaluateArgs {
     /// Reported unit (--unit, --unit-scale).
     #[command(flatten)]
     pub unit: crate::units::UnitArgs,
-    /// Also write PREFIX.md and PREFIX.json (a folder DIR/: DIR/evaluate.md and .json), both or neither
+    /// Also write PREFIX.md and PREFIX.json (a folder DIR/: DIR/evaluate.md and .json; both or
+    /// neither), and beside them PREFIX_error_by_time.csv, one SVG per action and
+    /// PREFIX_by_test_demonstration.csv
     #[arg(short, long, value_name = "PREFIX")]
     pub output: Option<PathBuf>,
     /// What to print: md (default, the table and the metric's definition), json or csv

@@ -408,7 +408,8 @@ pub struct Row {
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub by_test_demonstration: Vec<TestDemonstrationSummary>,
     /// How many distinct training subsets the seeds drew (a seed is a subset,
-    /// and `C(n, size)` bounds them: seeds beyond it repeat subsets); 0 in
+    /// and `C(n, size)` bounds them: seeds beyond it repeat subsets); 0 for
+    /// the constant-mean baseline (it trains on every demonstration) and in
     /// files written before it existed.
     #[serde(default)]
     pub training_subsets: usize,
@@ -425,8 +426,14 @@ pub struct Row {
 pub struct TestDemonstrationSummary {
     /// The test file's name.
     pub name: String,
-    /// Scored frames (the same on every seed).
+    /// Scored frames on one seed (the first that scored it; the same on
+    /// every seed unless `--missing` removes values); 0 when no seed did.
     pub frames: usize,
+    /// Seeds whose fit succeeded and scored at least one of its frames (its
+    /// MSE's mean is over these; coverage and NLPD over those of them whose
+    /// calibration could be scored, as the row's).
+    #[serde(default)]
+    pub seeds: usize,
     /// Mean over seeds of its MSE (unit²).
     #[serde(deserialize_with = "nan_if_null")]
     pub mse_mean: f64,
@@ -700,7 +707,13 @@ fn summarise_test_demonstrations(
             let sums: Vec<DemonstrationSums> =
                 seeds.clone().map(|r| r.by_demonstration[k]).collect();
             let scored: Vec<DemonstrationSums> = seeds
+                .clone()
                 .filter(|r| r.coverage.is_finite())
+                .map(|r| r.by_demonstration[k])
+                .collect();
+            // The row's NLPD is over the seeds whose NLPD is finite.
+            let with_nlpd: Vec<DemonstrationSums> = seeds
+                .filter(|r| r.nlpd.is_finite())
                 .map(|r| r.by_demonstration[k])
                 .collect();
             let (mse_mean, mse_std) =
@@ -712,7 +725,7 @@ fn summarise_test_demonstrations(
                     .collect::<Vec<_>>(),
             );
             let nlpd_mean = mean_std(
-                &scored
+                &with_nlpd
                     .iter()
                     .map(|d| d.nlpd / d.frames as f64)
                     .collect::<Vec<_>>(),
@@ -721,6 +734,7 @@ fn summarise_test_demonstrations(
             TestDemonstrationSummary {
                 name: name.clone(),
                 frames: sums.first().map_or(0, |d| d.frames),
+                seeds: sums.len(),
                 mse_mean,
                 mse_std,
                 coverage_mean,
@@ -877,9 +891,9 @@ fn run_seed(
                 .robot_positions
                 .iter()
                 .map(|&j| {
-                    let k = layout.robot[j];
-                    let predicted = pred.mean[t * o + j] * scale[k] + shift[k];
-                    ((predicted - f[k]) * protocol.unit_scale).powi(2)
+                    let c = layout.robot[j];
+                    let predicted = pred.mean[t * o + j] * scale[c] + shift[c];
+                    ((predicted - f[c]) * protocol.unit_scale).powi(2)
                 })
                 .sum::<f64>();
             by_time.frames[bin] += 1;
@@ -899,8 +913,8 @@ fn run_seed(
                 continue;
             };
             for (a, &j) in layout.robot_positions.iter().enumerate() {
-                let k = layout.robot[j];
-                residual[a] = (f[k] - shift[k]) / scale[k] - pred.mean[t * o + j];
+                let c = layout.robot[j];
+                residual[a] = (f[c] - shift[c]) / scale[c] - pred.mean[t * o + j];
             }
             phasekit_gmr::covariance_block(
                 &cov[t * o * o..(t + 1) * o * o],

@@ -10,6 +10,7 @@ use phasekit_cli::data::{load_action, FeatureSpec, Velocity};
 use phasekit_cli::experiment::{
     distinct_subsets, evaluate_action, parse_method, subset, NamedMethod, Protocol, Row,
 };
+use phasekit_cli::units::mean_pm;
 use phasekit_tsc::PresetOptions;
 use std::collections::HashSet;
 use std::path::Path;
@@ -155,7 +156,7 @@ fn evaluate_writes_the_scores_by_test_demonstration_in_every_format() {
     assert!(md.contains("By test demonstration"), "{md}");
     assert!(
         md.contains(&format!(
-            "distinct training subsets: data {} in 3 seeds)",
+            "distinct training subsets: data: {} in 3 seeds)",
             distinct_subsets(3, 6, 4)
         )),
         "{md}"
@@ -167,7 +168,7 @@ fn evaluate_writes_the_scores_by_test_demonstration_in_every_format() {
     let mut lines = csv.lines();
     assert_eq!(
         lines.next().unwrap(),
-        "action,method,test_demonstration,frames,mse_mean_cm2,mse_sd_cm2,coverage_mean,coverage_sd,nlpd_mean"
+        "action,method,test_demonstration,frames,seeds,mse_mean_cm2,mse_sd_cm2,coverage_mean,coverage_sd,nlpd_mean"
     );
     let lines: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
     assert_eq!(lines.len(), 2 * 2, "{csv}");
@@ -184,6 +185,8 @@ fn evaluate_writes_the_scores_by_test_demonstration_in_every_format() {
             assert_eq!(cells[1], r["method"].as_str().unwrap());
             assert_eq!(cells[2], d["name"].as_str().unwrap());
             assert_eq!(cells[3], d["frames"].to_string());
+            assert_eq!(cells[4], d["seeds"].to_string());
+            assert_eq!(cells[4], "3");
             let keys = [
                 "mse_mean",
                 "mse_std",
@@ -191,14 +194,24 @@ fn evaluate_writes_the_scores_by_test_demonstration_in_every_format() {
                 "coverage_std",
                 "nlpd_mean",
             ];
-            for (cell, key) in cells[4..].iter().zip(keys) {
+            for (cell, key) in cells[5..].iter().zip(keys) {
                 assert_eq!(*cell, d[key].as_f64().unwrap().to_string(), "{key}");
             }
-            // The Markdown line shows the same coverage, to one decimal.
-            let line = format!("| data | {} | {} | {} |", cells[1], cells[2], cells[3]);
+            // The Markdown line shows the same numbers, rounded as printed.
+            let line = format!(
+                "| data | {} | {} | {} | {} |",
+                cells[1], cells[2], cells[3], cells[4]
+            );
             let md_line = md.lines().find(|l| l.starts_with(&line)).expect(&line);
-            let cov = format!("{:.1}", 100.0 * d["coverage_mean"].as_f64().unwrap());
-            assert!(md_line.contains(&format!("| {cov} |")), "{md_line}");
+            let f = |key: &str| d[key].as_f64().unwrap();
+            let expected = format!(
+                "{line} {} | {:.1} ± {:.1} | {:.3} |",
+                mean_pm(f("mse_mean"), f("mse_std"), true),
+                100.0 * f("coverage_mean"),
+                100.0 * f("coverage_std"),
+                f("nlpd_mean")
+            );
+            assert_eq!(md_line, expected);
             i += 1;
         }
     }
@@ -210,5 +223,19 @@ fn evaluate_writes_the_scores_by_test_demonstration_in_every_format() {
             assert_eq!(row.by_test_demonstration.len(), 2);
             assert_eq!(row.training_subsets, distinct_subsets(3, 6, 4));
         }
+    }
+}
+
+#[test]
+fn a_method_that_fails_on_every_seed_scores_no_test_demonstration() {
+    // λ_T with more states than any transition segment has frames: every seed
+    // fails; its lines say so (no frame, no seed) rather than look like zeros.
+    let (_dir, data) = interaction_folder(8, 3, 6, plain);
+    let rows = evaluate(&data, &["tsc-hmm:tsc-states=40,window=0"], 2);
+    assert_eq!(rows[0].seeds, 0, "{:?}", rows[0].failures);
+    assert_eq!(rows[0].by_test_demonstration.len(), 2);
+    for d in &rows[0].by_test_demonstration {
+        assert_eq!((d.frames, d.seeds), (0, 0));
+        assert!(d.mse_mean.is_nan() && d.coverage_mean.is_nan() && d.nlpd_mean.is_nan());
     }
 }

@@ -164,11 +164,7 @@ pub fn error_by_time_csv(r: &Report) -> String {
 /// The files of the error over time beside `PREFIX.md` (`md`): the CSV and one SVG
 /// per action of the report, with their contents.
 pub fn error_by_time_files(r: &Report, md: &Path) -> Result<Vec<(PathBuf, String)>> {
-    let beside = |suffix: &str| {
-        let text = md.as_os_str().to_string_lossy();
-        let prefix = text.strip_suffix(".md").unwrap_or(&text);
-        PathBuf::from(format!("{prefix}{suffix}"))
-    };
+    let beside = |suffix: &str| beside_markdown(md, suffix);
     let unit = unit_of(&r.protocol);
     let mut files = vec![(beside("_error_by_time.csv"), error_by_time_csv(r))];
     for action in &r.protocol.actions {
@@ -183,6 +179,13 @@ pub fn error_by_time_files(r: &Report, md: &Path) -> Result<Vec<(PathBuf, String
         files.push((beside(&format!("_error_by_time_{action}.svg")), svg));
     }
     Ok(files)
+}
+
+/// The file `PREFIX{suffix}` beside `PREFIX.md` (`md`).
+fn beside_markdown(md: &Path, suffix: &str) -> PathBuf {
+    let text = md.as_os_str().to_string_lossy();
+    let prefix = text.strip_suffix(".md").unwrap_or(&text);
+    PathBuf::from(format!("{prefix}{suffix}"))
 }
 
 /// The Markdown line that names the error-over-time files (`files` as
@@ -383,7 +386,7 @@ fn by_test_demonstration_markdown(r: &Report) -> String {
         .filter(|x| !x.baseline && x.row.training_subsets > 0)
     {
         let line = format!(
-            "{} {} in {} seeds",
+            "{}: {} in {} seeds",
             x.row.action,
             x.row.training_subsets,
             x.row.per_seed_mse.len()
@@ -392,30 +395,35 @@ fn by_test_demonstration_markdown(r: &Report) -> String {
             subsets.push(line);
         }
     }
-    let pct = |v: f64| {
-        if v.is_finite() {
-            format!("{:.1}", 100.0 * v)
-        } else {
-            "–".to_string()
-        }
-    };
+    let dash = || "–".to_string();
     let mut s = format!(
-        "By test demonstration (the test files are the same on every seed; only the training subset changes; distinct training subsets: {}). An action's MSE, coverage and NLPD are these, weighted by frames.\n\n| action | method | test demonstration | frames | MSE ({}) | coverage 95 % (%) | NLPD (nats) |\n|---|---|---|---:|---:|---:|---:|\n",
+        "By test demonstration. The test files are the same on every seed: a seed draws only the training subset (distinct training subsets: {}). Mean ± population sd over seeds; an action's mean MSE, coverage and NLPD are these means weighted by frames.\n\n| action | method | test demonstration | frames | seeds | MSE ({}) | coverage 95 % (%) | NLPD (nats) |\n|---|---|---|---:|---:|---:|---:|---:|\n",
         subsets.join(", "),
         unit.squared()
     );
     for (action, method, d) in rows {
+        let mse = if d.mse_mean.is_finite() {
+            pm(d.mse_mean, d.mse_std, d.seeds)
+        } else {
+            dash()
+        };
+        let coverage = match (d.coverage_mean.is_finite(), d.seeds > 1) {
+            (false, _) => dash(),
+            (true, true) => format!(
+                "{:.1} ± {:.1}",
+                100.0 * d.coverage_mean,
+                100.0 * d.coverage_std
+            ),
+            (true, false) => format!("{:.1}", 100.0 * d.coverage_mean),
+        };
+        let nlpd = if d.nlpd_mean.is_finite() {
+            format!("{:.3}", d.nlpd_mean)
+        } else {
+            dash()
+        };
         s.push_str(&format!(
-            "| {action} | {method} | {} | {} | {} | {} | {} |\n",
-            d.name,
-            d.frames,
-            sig4(d.mse_mean),
-            pct(d.coverage_mean),
-            if d.nlpd_mean.is_finite() {
-                format!("{:.3}", d.nlpd_mean)
-            } else {
-                "–".to_string()
-            }
+            "| {action} | {method} | {} | {} | {} | {mse} | {coverage} | {nlpd} |\n",
+            d.name, d.frames, d.seeds
         ));
     }
     s.push('\n');
@@ -429,7 +437,7 @@ fn by_test_demonstration_markdown(r: &Report) -> String {
 pub fn by_test_demonstration_csv(r: &Report) -> String {
     let u = squared_suffix(&unit_of(&r.protocol));
     let mut s = format!(
-        "action,method,test_demonstration,frames,mse_mean_{u},mse_sd_{u},coverage_mean,coverage_sd,nlpd_mean\n"
+        "action,method,test_demonstration,frames,seeds,mse_mean_{u},mse_sd_{u},coverage_mean,coverage_sd,nlpd_mean\n"
     );
     let fin = |v: f64| {
         if v.is_finite() {
@@ -440,11 +448,12 @@ pub fn by_test_demonstration_csv(r: &Report) -> String {
     };
     for (action, method, d) in by_test_demonstration_rows(&r.results) {
         s.push_str(&format!(
-            "{},{},{},{},{},{},{},{},{}\n",
+            "{},{},{},{},{},{},{},{},{},{}\n",
             output::csv_field(action),
             output::csv_field(method),
             output::csv_field(&d.name),
             d.frames,
+            d.seeds,
             fin(d.mse_mean),
             fin(d.mse_std),
             fin(d.coverage_mean),
@@ -813,13 +822,9 @@ pub fn run(a: &EvaluateArgs) -> Result<()> {
             let mut files = error_by_time_files(&report, md_path)?;
             md.push_str(&error_by_time_line(&report, &files));
             if !by_test_demonstration_rows(&report.results).is_empty() {
-                let text = md_path.as_os_str().to_string_lossy();
-                let path = PathBuf::from(format!(
-                    "{}_by_test_demonstration.csv",
-                    text.strip_suffix(".md").unwrap_or(&text)
-                ));
+                let path = beside_markdown(md_path, "_by_test_demonstration.csv");
                 md.push_str(&format!(
-                    "Scores by test demonstration (the table above, MSE sd over seeds too): {}.\n",
+                    "Scores by test demonstration (the \"By test demonstration\" table, to the last digit): {}.\n",
                     path.file_name().map_or_else(
                         || path.display().to_string(),
                         |n| n.to_string_lossy().into_owned()
