@@ -5,35 +5,18 @@
 
 use crate::common;
 
-use common::{interaction_folder, phasekit, plain};
-use phasekit_cli::data::{load_action, FeatureSpec, Velocity};
-use phasekit_cli::experiment::{
-    distinct_subsets, evaluate_action, parse_method, subset, NamedMethod, Protocol, Row,
-};
+use common::{evaluate_rows, interaction_folder, phasekit, plain};
+use phasekit_cli::experiment::{distinct_subsets, subset, Protocol, Row};
 use phasekit_cli::units::mean_pm;
-use phasekit_tsc::PresetOptions;
 use std::collections::HashSet;
 use std::path::Path;
 
-fn spec() -> FeatureSpec {
-    FeatureSpec {
-        human: vec!["p1_wrist_*".into()],
-        robot: vec!["p2_wrist_*".into()],
-        velocity: Velocity::Both,
-    }
-}
-
 fn evaluate(data: &Path, labels: &[&str], seeds: usize) -> Vec<Row> {
-    let action = load_action(data).unwrap();
-    let methods: Vec<NamedMethod> = labels
-        .iter()
-        .map(|m| parse_method(m, &PresetOptions::default()).unwrap())
-        .collect();
     let protocol = Protocol {
         seeds,
         ..Protocol::default()
     };
-    evaluate_action(&action, &spec(), &methods, &protocol, &|| {}).unwrap()
+    evaluate_rows(data, labels, &protocol)
 }
 
 fn close(a: f64, b: f64, rel: f64) -> bool {

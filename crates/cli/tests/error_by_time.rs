@@ -4,37 +4,18 @@
 
 use crate::common;
 
-use common::{interaction_folder, phasekit, plain};
-use phasekit_cli::data::{load_action, FeatureSpec, Velocity};
-use phasekit_cli::experiment::{
-    evaluate_action, parse_method, percentile, time_bin, NamedMethod, Protocol, Row,
-};
-use phasekit_tsc::PresetOptions;
+use common::{evaluate_rows, interaction_folder, methods, phasekit, plain, wrist_spec};
+use phasekit_cli::data::load_action;
+use phasekit_cli::experiment::{evaluate_action, percentile, time_bin, Protocol, Row};
 use std::path::Path;
 
-fn spec() -> FeatureSpec {
-    FeatureSpec {
-        human: vec!["p1_wrist_*".into()],
-        robot: vec!["p2_wrist_*".into()],
-        velocity: Velocity::Both,
-    }
-}
-
-fn methods(labels: &[&str]) -> Vec<NamedMethod> {
-    labels
-        .iter()
-        .map(|m| parse_method(m, &PresetOptions::default()).unwrap())
-        .collect()
-}
-
 fn evaluate(data: &Path, labels: &[&str], seeds: usize, bins: usize) -> Vec<Row> {
-    let action = load_action(data).unwrap();
     let protocol = Protocol {
         seeds,
         time_bins: bins,
         ..Protocol::default()
     };
-    evaluate_action(&action, &spec(), &methods(labels), &protocol, &|| {}).unwrap()
+    evaluate_rows(data, labels, &protocol)
 }
 
 fn close(a: f64, b: f64, rel: f64) -> bool {
@@ -206,9 +187,15 @@ fn zero_time_bins_is_an_error() {
         time_bins: 0,
         ..Protocol::default()
     };
-    let e = evaluate_action(&action, &spec(), &methods(&["hmm"]), &protocol, &|| {})
-        .err()
-        .unwrap();
+    let e = evaluate_action(
+        &action,
+        &wrist_spec(),
+        &methods(&["hmm"]),
+        &protocol,
+        &|| {},
+    )
+    .err()
+    .unwrap();
     assert!(e.contains("time bins"), "{e}");
     let out = phasekit()
         .args([

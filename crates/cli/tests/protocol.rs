@@ -4,7 +4,8 @@
 //! Needs the NuiSI demonstrations: `$PHASEKIT_NUISI`, or `shared/data/nuisi`
 //! beside the repository. Without them the test says so and passes; CI has them.
 
-use phasekit_cli::data::{load_action, FeatureSpec, Velocity};
+use crate::common::wrist_spec;
+use phasekit_cli::data::load_action;
 use phasekit_cli::experiment::{
     constant_mean_mse, evaluate_action, parse_method, prepare, Protocol,
 };
@@ -21,14 +22,6 @@ fn nuisi() -> Option<PathBuf> {
             ))
         });
     dir.is_dir().then_some(dir)
-}
-
-fn spec() -> FeatureSpec {
-    FeatureSpec {
-        human: vec!["p1_wrist_*".into()],
-        robot: vec!["p2_wrist_*".into()],
-        velocity: Velocity::Both,
-    }
 }
 
 /// Relative agreement to 3 significant digits (half a unit of the third digit).
@@ -61,13 +54,13 @@ fn hmm_preset_reproduces_protocol_reference_numbers() {
     };
     for (name, constant, hmm4, hmm7) in reference {
         let action = load_action(&dir.join(name)).unwrap();
-        let prep = prepare(&action, &spec()).unwrap();
+        let prep = prepare(&action, &wrist_spec()).unwrap();
         let c = constant_mean_mse(&prep, 100.0);
         assert!(
             same_3_digits(c, constant),
             "{name}: constant baseline {c} vs {constant}"
         );
-        let rows = evaluate_action(&action, &spec(), &methods, &protocol, &|| {}).unwrap();
+        let rows = evaluate_action(&action, &wrist_spec(), &methods, &protocol, &|| {}).unwrap();
         assert_eq!(rows[0].seeds, 1);
         assert!(
             same_3_digits(rows[0].mse_mean, hmm4),

@@ -124,3 +124,41 @@ pub fn parse_stream(text: &str, with_header: bool) -> (Vec<String>, Vec<Vec<f64>
 pub fn model_json(path: &Path) -> serde_json::Value {
     serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
 }
+
+/// The paper's features of the generated interactions: both wrists, with
+/// velocities.
+pub fn wrist_spec() -> phasekit_cli::data::FeatureSpec {
+    phasekit_cli::data::FeatureSpec {
+        human: vec!["p1_wrist_*".into()],
+        robot: vec!["p2_wrist_*".into()],
+        velocity: phasekit_cli::data::Velocity::Both,
+    }
+}
+
+/// The methods of `labels`, with the default settings.
+pub fn methods(labels: &[&str]) -> Vec<phasekit_cli::experiment::NamedMethod> {
+    labels
+        .iter()
+        .map(|m| {
+            phasekit_cli::experiment::parse_method(m, &phasekit_tsc::PresetOptions::default())
+                .unwrap()
+        })
+        .collect()
+}
+
+/// `evaluate_action` of the action folder `data` with `labels` and `protocol`.
+pub fn evaluate_rows(
+    data: &Path,
+    labels: &[&str],
+    protocol: &phasekit_cli::experiment::Protocol,
+) -> Vec<phasekit_cli::experiment::Row> {
+    let action = phasekit_cli::data::load_action(data).unwrap();
+    phasekit_cli::experiment::evaluate_action(
+        &action,
+        &wrist_spec(),
+        &methods(labels),
+        protocol,
+        &|| {},
+    )
+    .unwrap()
+}
