@@ -2,13 +2,10 @@
 //! carry the cross-validation table, evaluate names the choice per seed and
 //! the choice depends on the training demonstrations only, keys are validated.
 
-use crate::common::{interaction_folder, parse_csv, parse_stream, phasekit, plain, write_frames};
+use crate::common::{
+    interaction_folder, parse_csv, parse_stream, phasekit, plain, stdout, write_frames,
+};
 use phasekit_tsc::synthetic;
-
-fn stdout(cmd: &mut assert_cmd::Command) -> String {
-    let out = cmd.assert().success().get_output().stdout.clone();
-    String::from_utf8(out).unwrap()
-}
 
 fn stderr_of_failure(cmd: &mut assert_cmd::Command) -> String {
     let out = cmd.assert().failure().get_output().stderr.clone();

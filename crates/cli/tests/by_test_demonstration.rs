@@ -5,7 +5,7 @@
 
 use crate::common;
 
-use common::{evaluate_rows, interaction_folder, phasekit, plain};
+use common::{evaluate_rows, interaction_folder, phasekit, plain, stdout};
 use phasekit_cli::experiment::{distinct_subsets, subset, Protocol, Row};
 use phasekit_cli::units::mean_pm;
 use std::collections::HashSet;
@@ -124,18 +124,14 @@ fn the_seeds_draw_at_most_every_subset_once() {
 fn evaluate_writes_the_scores_by_test_demonstration_in_every_format() {
     let (dir, data) = interaction_folder(8, 3, 6, plain);
     let prefix = dir.path().join("run");
-    let md = phasekit()
-        .args(["evaluate", "--methods", "hmm,gmm", "--seeds", "3"])
-        .arg("--data")
-        .arg(&data)
-        .arg("-o")
-        .arg(&prefix)
-        .assert()
-        .success()
-        .get_output()
-        .stdout
-        .clone();
-    let md = String::from_utf8(md).unwrap();
+    let md = stdout(
+        phasekit()
+            .args(["evaluate", "--methods", "hmm,gmm", "--seeds", "3"])
+            .arg("--data")
+            .arg(&data)
+            .arg("-o")
+            .arg(&prefix),
+    );
     assert!(md.contains("By test demonstration"), "{md}");
     assert!(
         md.contains(&format!(

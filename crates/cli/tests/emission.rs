@@ -5,7 +5,7 @@
 
 use crate::common;
 
-use common::{interaction_folder, model_json, parse_csv, parse_stream, phasekit, plain};
+use common::{interaction_folder, model_json, parse_csv, parse_stream, phasekit, plain, stdout};
 use predicates::prelude::*;
 use std::path::Path;
 
@@ -21,11 +21,6 @@ fn fit(data: &Path, model: &Path, args: &[&str]) {
         .arg(model)
         .assert()
         .success();
-}
-
-fn stdout(cmd: &mut assert_cmd::Command) -> String {
-    let out = cmd.assert().success().get_output().stdout.clone();
-    String::from_utf8(out).unwrap()
 }
 
 /// The first three columns (the human's wrist) of a CSV text, header included.

@@ -4,13 +4,8 @@
 
 use crate::common;
 
-use common::{interaction_folder, model_json, parse_csv, parse_stream, phasekit, plain};
+use common::{interaction_folder, model_json, parse_csv, parse_stream, phasekit, plain, stdout};
 use std::path::Path;
-
-fn stdout(cmd: &mut assert_cmd::Command) -> String {
-    let out = cmd.assert().success().get_output().stdout.clone();
-    String::from_utf8(out).unwrap()
-}
 
 fn fit(data: &Path, model: &Path, method: &str) {
     phasekit()

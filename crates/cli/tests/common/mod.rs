@@ -162,3 +162,9 @@ pub fn evaluate_rows(
     )
     .unwrap()
 }
+
+/// The standard output of `cmd`, which must succeed.
+pub fn stdout(cmd: &mut Command) -> String {
+    let out = cmd.assert().success().get_output().stdout.clone();
+    String::from_utf8(out).unwrap()
+}
