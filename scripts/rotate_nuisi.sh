@@ -6,9 +6,12 @@
 # test_* alike) is the test file once, and each seed trains on a random
 # subset of the others of the protocol's size (the action's train_* count
 # minus two), so every number is over all 9-12 demonstrations of the action.
-# Prints the tables; every fold's evaluate output is kept in OUT as
-# OUT/ACTION/DEMONSTRATION.{json,md}, and a fold already there is not fitted
-# again (so a rerun on results/rotate_20_seeds prints its tables at once).
+# Prints the tables. Every fold's evaluate output is kept in OUT as
+# OUT/ACTION/DEMONSTRATION.{json,md} (the JSON holds every number of the
+# side files evaluate's -o also writes, which are not kept; in both, the one
+# test file is named test_00.csv). A fold already in OUT with the same seeds,
+# methods and training size is not fitted again, so a rerun resumes where it
+# stopped and a rerun on results/rotate_20_seeds prints its tables at once.
 #
 #     bash scripts/rotate_nuisi.sh [SEEDS] [NUISI_DIR] [OUT] [METHODS]
 #     # defaults: 20, ../shared/data/nuisi, a temporary folder, and the
@@ -18,25 +21,45 @@
 #
 # 20 seeds took 58 min 47 s on 2 cores (115.6 min of CPU).
 set -euo pipefail
-cd "$(dirname "$0")/.."
+shopt -s nullglob
 seeds="${1:-20}"
-data="$(cd "${2:-../shared/data/nuisi}" && pwd)"
+data="$(cd "${2:-$(dirname "$0")/../../shared/data/nuisi}" && pwd)"
 out="${3:-$(mktemp -d)}"
-methods="${4:-hmm:states=7,tsc-hmm,auto,hmm:states=7,reg-rel=0.01,tsc-hmm:reg-rel=0.01}"
-cargo build --release -q -p phasekit-cli
-bin="$PWD/target/release/phasekit"
 mkdir -p "$out"
 out="$(cd "$out" && pwd)"
+methods="${4:-hmm:states=7,tsc-hmm,auto,hmm:states=7,reg-rel=0.01,tsc-hmm:reg-rel=0.01}"
+cd "$(dirname "$0")/.."
+cargo build --release -q -p phasekit-cli
+bin="$PWD/target/release/phasekit"
 folds=$(mktemp -d)
-tmp_result=$(mktemp -d)
-trap 'rm -rf "$folds" "$tmp_result"' EXIT
+trap 'rm -rf "$folds"' EXIT
+echo "Every fold's output: $out" >&2
 for dir in "$data"/*/; do
   action=$(basename "$dir")
-  files=("$dir"/train_*.csv "$dir"/test_*.csv)
-  n_train=$(ls "$dir"/train_*.csv | wc -l)
-  size=$((n_train - 2))
+  trains=("$dir"train_*.csv)
+  files=("${trains[@]}" "$dir"test_*.csv)
+  size=$((${#trains[@]} - 2))
+  if [ "$size" -lt 1 ] || [ "${#files[@]}" -lt 3 ]; then
+    echo "$action: skipped (${#trains[@]} train_* and ${#files[@]} files in all)" >&2
+    continue
+  fi
+  mkdir -p "$out/$action"
   for held in "${files[@]}"; do
     name=$(basename "$held" .csv)
+    result="$out/$action/$name"
+    if [ -s "$result.json" ] && [ -s "$result.md" ]; then
+      # Resume only a fold of this very run; anything else would mix runs.
+      python3 - "$result.json" "$seeds" "$methods" "$size" <<'PY'
+import json, sys
+p = json.load(open(sys.argv[1]))["protocol"]
+want = (int(sys.argv[2]), sys.argv[3], int(sys.argv[4]))
+have = (p["seeds"], ",".join(p["methods"]), p["train_size"])
+if have != want:
+    sys.exit(f"{sys.argv[1]}: made with seeds, methods, train size {have}, not {want}; "
+             "choose another OUT")
+PY
+      continue
+    fi
     fold="$folds/$action/$name/$action"
     mkdir -p "$fold"
     ln -sf "$held" "$fold/test_00.csv"
@@ -46,13 +69,11 @@ for dir in "$data"/*/; do
       ln -sf "$f" "$fold/$(printf 'train_%02d.csv' "$i")"
       i=$((i + 1))
     done
-    result="$out/$action/$name"
-    mkdir -p "$out/$action"
-    [ -s "$result.json" ] && continue   # a rerun resumes where it stopped
     "$bin" evaluate --data "$fold" --train-size "$size" --seeds "$seeds" \
-      --methods "$methods" -o "$tmp_result/r" > /dev/null
-    mv "$tmp_result/r.json" "$result.json"
-    mv "$tmp_result/r.md" "$result.md"
+      --methods "$methods" -o "$folds/$name" > /dev/null
+    # The Markdown first, the JSON last: a fold counts as done by its JSON.
+    mv "$folds/$name.md" "$result.md"
+    mv "$folds/$name.json" "$result.json"
   done
 done
 python3 - "$out" <<'PY'
@@ -70,6 +91,9 @@ for path in sorted(glob.glob(os.path.join(out, "*", "*.json"))):
         rows.setdefault((action, r["method"]), []).append((demo, line["frames"], r))
 actions = sorted({a for a, _ in rows})
 methods = list(dict.fromkeys(m for _, m in rows))
+for a in actions:
+    demos = {m: sorted(d for d, _, _ in rows.get((a, m), [])) for m in methods}
+    assert len({tuple(v) for v in demos.values()}) == 1, f"{a}: methods over different folds: {demos}"
 target = "auto" if "auto" in methods else methods[-1]
 
 def frames_of(lines):
