@@ -615,6 +615,16 @@ pub fn csv_field(s: &str) -> String {
     }
 }
 
+/// A number as a CSV field: its shortest round-trip form, or empty when it is
+/// not finite (undefined: a bin without frames, a coverage never scored).
+pub fn csv_number(v: f64) -> String {
+    if v.is_finite() {
+        v.to_string()
+    } else {
+        String::new()
+    }
+}
+
 /// A CSV header line (without newline) of these names, each quoted when needed.
 pub fn csv_header<S: AsRef<str>>(names: &[S]) -> String {
     names

@@ -9,7 +9,7 @@ use crate::experiment::{
     constant_mean_mse, evaluate_action, paired, parse_method, prepare, NamedMethod, Protocol, Row,
     TestDemonstrationSummary, TimeBinSummary,
 };
-use crate::output;
+use crate::output::{self, csv_number};
 use crate::units::{mean_pm, sig4, Unit};
 use phasekit_tsc::PresetOptions;
 use serde::Serialize;
@@ -134,13 +134,6 @@ pub fn error_by_time_csv(r: &Report) -> String {
     let mut s = format!(
         "action,method,bin,time_from,time_to,frames,mse_mean_{u},mse_sd_{u},mse_p05_{u},mse_p95_{u},coverage_mean\n"
     );
-    let fin = |v: f64| {
-        if v.is_finite() {
-            v.to_string()
-        } else {
-            String::new()
-        }
-    };
     for x in error_by_time_rows(&r.results) {
         let b = &x.bin;
         s.push_str(&format!(
@@ -151,11 +144,11 @@ pub fn error_by_time_csv(r: &Report) -> String {
             b.time_from,
             b.time_to,
             b.frames,
-            fin(b.mse_mean),
-            fin(b.mse_sd),
-            fin(b.mse_p05),
-            fin(b.mse_p95),
-            fin(b.coverage_mean),
+            csv_number(b.mse_mean),
+            csv_number(b.mse_sd),
+            csv_number(b.mse_p05),
+            csv_number(b.mse_p95),
+            csv_number(b.coverage_mean),
         ));
     }
     s
@@ -439,13 +432,6 @@ pub fn by_test_demonstration_csv(r: &Report) -> String {
     let mut s = format!(
         "action,method,test_demonstration,frames,seeds,mse_mean_{u},mse_sd_{u},coverage_mean,coverage_sd,nlpd_mean\n"
     );
-    let fin = |v: f64| {
-        if v.is_finite() {
-            v.to_string()
-        } else {
-            String::new()
-        }
-    };
     for (action, method, d) in by_test_demonstration_rows(&r.results) {
         s.push_str(&format!(
             "{},{},{},{},{},{},{},{},{},{}\n",
@@ -454,11 +440,11 @@ pub fn by_test_demonstration_csv(r: &Report) -> String {
             output::csv_field(&d.name),
             d.frames,
             d.seeds,
-            fin(d.mse_mean),
-            fin(d.mse_std),
-            fin(d.coverage_mean),
-            fin(d.coverage_std),
-            fin(d.nlpd_mean),
+            csv_number(d.mse_mean),
+            csv_number(d.mse_std),
+            csv_number(d.coverage_mean),
+            csv_number(d.coverage_std),
+            csv_number(d.nlpd_mean),
         ));
     }
     s
@@ -507,13 +493,6 @@ pub fn csv(r: &Report) -> String {
     let unit = output::csv_field(&unit_of(&r.protocol).name);
     let opt = |v: Option<f64>| v.map_or(String::new(), |v| v.to_string());
     let name = |v: &Option<String>| v.as_deref().map_or(String::new(), output::csv_field);
-    let fin = |v: f64| {
-        if v.is_finite() {
-            v.to_string()
-        } else {
-            String::new()
-        }
-    };
     for x in &r.results {
         let row = &x.row;
         s.push_str(&format!(
@@ -537,10 +516,10 @@ pub fn csv(r: &Report) -> String {
             name(&x.second_reference),
             opt(x.paired_change_second),
             opt(x.paired_won_second),
-            fin(row.coverage_mean),
-            fin(row.coverage_std),
-            fin(row.nlpd_mean),
-            fin(row.nlpd_std),
+            csv_number(row.coverage_mean),
+            csv_number(row.coverage_std),
+            csv_number(row.nlpd_mean),
+            csv_number(row.nlpd_std),
             row.fit_seconds_std,
         ));
     }
